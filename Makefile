@@ -1,0 +1,66 @@
+# UAV autonomy test range. The two commands a new user needs:
+#   make demo   # install what is missing, build, run the main job
+#   make test   # install what is missing, build, run every test tier
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+IN_ENV := scripts/in_env
+
+.PHONY: help setup apt venv build demo test test-unit test-ros test-e2e check lint typecheck format bench docker-build docker-run clean distclean
+
+help: ## list the targets
+	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-13s %s\n", $$1, $$2}'
+
+setup: ## install Debian packages, the .venv and build the catkin workspace (idempotent)
+	@scripts/setup.sh all
+
+apt: ## only the Debian packages
+	@scripts/setup.sh apt
+
+venv: ## only the Python venv
+	@scripts/setup.sh venv
+
+build: ## only catkin_make (after setup)
+	@scripts/setup.sh build
+
+demo: setup ## run the main job headless and print where its report is
+	@$(IN_ENV) scripts/demo
+
+test: setup ## run all test tiers (unit, ros, e2e); non-zero exit on any failure
+	@scripts/run_tests.sh all
+
+test-unit: setup ## pure tests, no ROS master
+	@scripts/run_tests.sh unit
+
+test-ros: setup ## rostest integration tests with a real roscore
+	@scripts/run_tests.sh ros
+
+test-e2e: setup ## SITL + router + ROS stack end-to-end tests
+	@scripts/run_tests.sh e2e
+
+check: lint typecheck ## ruff + mypy
+
+lint: setup
+	@$(IN_ENV) ruff check .
+	@$(IN_ENV) ruff format --check .
+
+format: setup ## apply ruff formatting and safe fixes
+	@$(IN_ENV) ruff format .
+	@$(IN_ENV) ruff check --fix .
+
+typecheck: setup
+	@$(IN_ENV) scripts/typecheck
+
+bench: setup ## run every benchmark; appends JSON lines to bench/results/latest.jsonl
+	@$(IN_ENV) python bench/run.py
+
+docker-build: ## build docker/Dockerfile (needs a Docker engine)
+	docker build -f docker/Dockerfile -t uav-test-range .
+
+docker-run: ## run `make demo` in the image
+	docker run --rm -it uav-test-range
+
+clean: ## remove the catkin build and test outputs (keeps .venv and apt)
+	rm -rf catkin_ws/build catkin_ws/devel artifacts .stamps/catkin_make.log
+
+distclean: clean ## also remove the venv and stamps
+	rm -rf .venv .stamps

@@ -1,0 +1,1 @@
+"""MAVLink router with mavlink-routerd semantics and configuration format. Never imports ROS."""
