@@ -1,0 +1,524 @@
+"""The run scorer: accumulates a run's observations and turns them into metrics.
+
+One :class:`RunScorer` is fed records (``scoring_types``) in simulation-time
+order by the live scorer node, a replay or the offline bag reader. At any time
+:meth:`RunScorer.sample` gives one time-series row and :meth:`RunScorer.summary`
+the nested metric dictionary written to ``metrics.json``. Every statistic with a
+natural context is also broken down by context: clutter (objects in view), view
+angle, range and altitude band.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from uav_autonomy.core.scenario_config import ScoringSpec
+from uav_autonomy.core.scenario_errors import ScoringError
+from uav_autonomy.core.scoring_metrics import (
+    VoxelAccuracy,
+    altitude_stats,
+    band_label,
+    band_of,
+    battery_use,
+    mapped_area_m2,
+    match_detections,
+    mean_cell_age_s,
+    view_angle_deg,
+    voxel_accuracy,
+)
+from uav_autonomy.core.scoring_types import (
+    BatterySample,
+    CollisionEvent,
+    ControllerSample,
+    DepthMetricsSample,
+    Detection,
+    DetectionFrame,
+    GoalSample,
+    GridSnapshot,
+    PoseSample,
+    SceneTruth,
+    TrackFrame,
+)
+from uav_autonomy.core.tracking import MotScorer
+
+__all__ = ["CONTEXTS", "DetectionCounts", "RunScorer", "swath_width_m"]
+
+#: Context dimensions of the breakdown and the unit of their bands.
+CONTEXTS = {"clutter": "objects", "view_angle": "deg", "range": "m", "altitude": "m"}
+_FRAME_KEY_DIGITS = 4  # stamps are matched to 0.1 ms
+
+
+def swath_width_m(altitude_m: float, fov_deg: float) -> float:
+    """Ground swath of a nadir camera: ``2 h tan(fov/2)``."""
+    return 2.0 * altitude_m * math.tan(math.radians(fov_deg) / 2.0)
+
+
+@dataclass
+class DetectionCounts:
+    tp: int = 0
+    fp: int = 0
+    fn: int = 0
+
+    @property
+    def precision(self) -> float:
+        return self.tp / (self.tp + self.fp) if self.tp + self.fp else math.nan
+
+    @property
+    def recall(self) -> float:
+        return self.tp / (self.tp + self.fn) if self.tp + self.fn else math.nan
+
+    def as_dict(self) -> dict[str, float]:
+        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall}
+
+
+@dataclass
+class _FirstDetection:
+    t_s: float
+    range_m: float
+
+
+@dataclass
+class RunScorer:
+    """Accumulates one run. Feed records in time order; read ``sample()`` / ``summary()``.
+
+    Args:
+        spec: scoring settings (floors, bands, gates).
+        truth: the scene's ground truth (bounds, surface voxels, ground heights).
+        detection_source: the ``DetectionFrame.source`` of the detector under test
+            (``ground_truth`` when the ground truth itself is the detector).
+        person_id: instance id of the person of interest, 0 if none.
+        tracked_camera: camera whose detections the tracker follows.
+        swath_m_per_m: nadir swath width per metre of altitude (``2 tan(fov/2)``), for the
+            coverage efficiency; 0 if unknown.
+    """
+
+    spec: ScoringSpec
+    truth: SceneTruth
+    detection_source: str = "ground_truth"
+    person_id: int = 0
+    tracked_camera: str = "forward"
+    cruise_speed_mps: float = math.nan
+    swath_m_per_m: float = 0.0
+    start_t_s: float = math.nan
+    _poses: list[PoseSample] = field(default_factory=list)
+    _agl: list[float] = field(default_factory=list)
+    _distance_m: float = 0.0
+    _battery: list[BatterySample] = field(default_factory=list)
+    _layers: GridSnapshot | None = None
+    _mapped_m2: float = 0.0
+    _map_accuracy: VoxelAccuracy | None = None
+    _map_accuracy_t_s: float = math.nan
+    _collisions: list[CollisionEvent] = field(default_factory=list)
+    _goals: list[GoalSample] = field(default_factory=list)
+    _controller: list[ControllerSample] = field(default_factory=list)
+    _depth: list[DepthMetricsSample] = field(default_factory=list)
+    _pending_truth: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
+    _pending_hyp: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
+    _pending_tracks: dict[tuple[str, float], TrackFrame] = field(default_factory=dict)
+    _det_total: DetectionCounts = field(default_factory=DetectionCounts)
+    _det_by_context: dict[str, dict[int, DetectionCounts]] = field(
+        default_factory=lambda: {c: defaultdict(DetectionCounts) for c in CONTEXTS}
+    )
+    _det_frames: int = 0
+    _first_person_seen: _FirstDetection | None = None
+    _first_person_detected: _FirstDetection | None = None
+    _first_detection_any: _FirstDetection | None = None
+    _mot: MotScorer | None = None
+    _mot_by_context: dict[str, dict[int, MotScorer]] = field(default_factory=dict)
+    _events: list[tuple[float, str]] = field(default_factory=list)
+    _complete_t_s: float = math.nan
+    _complete_what: str = ""
+    _last_t_s: float = -math.inf
+
+    # ---- feeding -------------------------------------------------------------------------
+
+    def _advance(self, t_s: float) -> None:
+        if not math.isfinite(t_s):
+            msg = f"record with non-finite time {t_s}"
+            raise ScoringError(msg)
+        if math.isnan(self.start_t_s):
+            self.start_t_s = t_s
+        self._last_t_s = max(self._last_t_s, t_s)
+
+    def add_pose(self, pose: PoseSample) -> None:
+        self._advance(pose.t_s)
+        if self._poses:
+            prev = self._poses[-1]
+            if pose.t_s < prev.t_s:
+                return  # a stale duplicate (e.g. bag re-ordering); never count it twice
+            self._distance_m += math.dist(prev.position_m, pose.position_m)
+        self._poses.append(pose)
+        self._agl.append(self._ground_clearance(pose))
+
+    def add_battery(self, sample: BatterySample) -> None:
+        self._advance(sample.t_s)
+        self._battery.append(sample)
+
+    def add_layers(self, layers: GridSnapshot) -> None:
+        self._advance(layers.t_s)
+        self._layers = layers
+        self._mapped_m2 = mapped_area_m2(layers, self.truth.bounds_m)
+
+    def add_map_keys(self, t_s: float, keys: np.ndarray[Any, np.dtype[np.int64]]) -> VoxelAccuracy | None:
+        """Occupied voxel keys of the map at ``t_s`` (same resolution as the truth)."""
+        self._advance(t_s)
+        if self.truth.surface_keys.size == 0:
+            return None
+        self._map_accuracy = voxel_accuracy(keys, self.truth.surface_keys)
+        self._map_accuracy_t_s = t_s
+        return self._map_accuracy
+
+    def add_collision(self, event: CollisionEvent) -> None:
+        self._advance(event.t_s)
+        self._collisions.append(event)
+        self._events.append((event.t_s, f"collision with {event.class_name} {event.instance_id}"))
+
+    def add_goal(self, goal: GoalSample) -> None:
+        self._advance(goal.t_s)
+        self._goals.append(goal)
+
+    def add_controller(self, sample: ControllerSample) -> None:
+        self._advance(sample.t_s)
+        if not self._controller or self._controller[-1].state != sample.state:
+            self._events.append((sample.t_s, f"controller {sample.state}"))
+        self._controller.append(sample)
+
+    def add_depth_metrics(self, sample: DepthMetricsSample) -> None:
+        self._advance(sample.t_s)
+        self._depth.append(sample)
+
+    def add_event(self, t_s: float, text: str) -> None:
+        self._advance(t_s)
+        self._events.append((t_s, text))
+
+    def mark_complete(self, t_s: float, what: str) -> None:
+        """The mission's task is done (person confirmed, area mapped); the first call wins."""
+        self._advance(t_s)
+        if math.isnan(self._complete_t_s):
+            self._complete_t_s = t_s
+            self._complete_what = what
+            self._events.append((t_s, f"complete: {what}"))
+
+    def add_detections(self, frame: DetectionFrame, *, is_truth: bool) -> None:
+        """A frame of ground-truth detections, of the detector under test, or both.
+
+        Frames are paired by ``(camera, stamp)``: a ground-truth frame is scored once
+        the detector's frame of the same image arrives (detectors may skip images;
+        skipped images are not scored).
+        """
+        self._advance(frame.t_s)
+        key = (frame.camera, round(frame.t_s, _FRAME_KEY_DIGITS))
+        both = is_truth and frame.source == self.detection_source
+        if is_truth:
+            self._note_person_seen(frame)
+            self._pending_truth[key] = frame
+        if both or not is_truth:
+            self._pending_hyp[key] = frame
+        self._score_pending(key)
+        self._prune(frame.t_s)
+
+    def add_tracks(self, frame: TrackFrame) -> None:
+        self._advance(frame.t_s)
+        key = (frame.camera, round(frame.t_s, _FRAME_KEY_DIGITS))
+        self._pending_tracks[key] = frame
+        self._score_pending(key)
+
+    # ---- internals -----------------------------------------------------------------------
+
+    def _ground_clearance(self, pose: PoseSample) -> float:
+        x, y, z = pose.position_m
+        ground = math.nan
+        if self.truth.ground is not None:
+            ground = self.truth.ground.value_at("elevation_m", x, y)
+        if math.isnan(ground) and self._layers is not None:
+            ground = self._layers.value_at("elevation_m", x, y)
+        if math.isnan(ground):
+            ground = 0.0  # home level: the terrain under home is z = 0 by convention
+        return z - ground
+
+    def _pose_at(self, t_s: float) -> tuple[PoseSample | None, float]:
+        if not self._poses:
+            return None, math.nan
+        times = [p.t_s for p in self._poses[-200:]]
+        k = int(np.argmin(np.abs(np.asarray(times) - t_s)))
+        return self._poses[-200:][k], self._agl[-200:][k]
+
+    def _note_person_seen(self, frame: DetectionFrame) -> None:
+        if self._first_person_seen is not None or not self.person_id:
+            return
+        for d in frame.detections:
+            if d.instance_id == self.person_id:
+                self._first_person_seen = _FirstDetection(frame.t_s, d.range_m)
+                self._events.append((frame.t_s, f"person in view at {d.range_m:.0f} m"))
+
+    def _score_pending(self, key: tuple[str, float]) -> None:
+        truth = self._pending_truth.get(key)
+        hyp = self._pending_hyp.pop(key, None)
+        if truth is not None and hyp is not None:
+            self._score_detection_frame(truth, hyp)
+        elif hyp is not None:
+            self._pending_hyp[key] = hyp
+        tracks = self._pending_tracks.get(key)
+        if truth is not None and tracks is not None:
+            self._score_track_frame(truth, tracks)
+            del self._pending_tracks[key]
+
+    def _prune(self, now_s: float) -> None:
+        horizon = now_s - 10.0
+        for pending in (self._pending_truth, self._pending_hyp, self._pending_tracks):
+            for k in [k for k in pending if k[1] < horizon]:
+                del pending[k]
+
+    def _frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+        _, agl = self._pose_at(truth.t_s)
+        spec = self.spec
+        return {
+            "clutter": band_of(float(len(truth.detections)), spec.clutter_bands),
+            "altitude": band_of(agl, spec.altitude_bands_m),
+        }
+
+    def _object_context(self, det: Detection, frame_ctx: dict[str, int], camera_m: tuple[float, ...]) -> dict[str, int]:
+        spec = self.spec
+        angle = math.nan
+        if len(camera_m) == 3:
+            angle = view_angle_deg((camera_m[0], camera_m[1], camera_m[2]), det.position_m)
+        return {
+            **frame_ctx,
+            "range": band_of(det.range_m, spec.range_bands_m),
+            "view_angle": band_of(angle, spec.view_angle_bands_deg),
+        }
+
+    def _count(self, ctx: dict[str, int], kind: str) -> None:
+        for name, band in ctx.items():
+            counts = self._det_by_context[name][band]
+            setattr(counts, kind, getattr(counts, kind) + 1)
+        setattr(self._det_total, kind, getattr(self._det_total, kind) + 1)
+
+    def _score_detection_frame(self, truth: DetectionFrame, hyp: DetectionFrame) -> None:
+        self._det_frames += 1
+        pose, _ = self._pose_at(truth.t_s)
+        camera_m: tuple[float, ...] = pose.position_m if pose is not None else ()
+        frame_ctx = self._frame_context(truth)
+        matches, missed, false = match_detections(truth.detections, hyp.detections)
+        for i, j in matches:
+            t_det = truth.detections[i]
+            self._count(self._object_context(t_det, frame_ctx, camera_m), "tp")
+            if self._first_detection_any is None:
+                self._first_detection_any = _FirstDetection(truth.t_s, t_det.range_m)
+            if self.person_id and t_det.instance_id == self.person_id and self._first_person_detected is None:
+                self._first_person_detected = _FirstDetection(truth.t_s, hyp.detections[j].range_m)
+                self._events.append((truth.t_s, f"person detected at {t_det.range_m:.0f} m"))
+        for i in missed:
+            self._count(self._object_context(truth.detections[i], frame_ctx, camera_m), "fn")
+        for j in false:
+            self._count(self._object_context(hyp.detections[j], frame_ctx, camera_m), "fp")
+
+    def _score_track_frame(self, truth: DetectionFrame, tracks: TrackFrame) -> None:
+        if self._mot is None:
+            self._mot = MotScorer(self.spec.track_gate_m)
+        finite = [d for d in truth.detections if all(math.isfinite(v) for v in d.position_m)]
+        t_ids = [d.instance_id for d in finite]
+        t_xy = np.array([d.position_m[:2] for d in finite]).reshape(-1, 2)
+        h_ids = [t.track_id for t in tracks.tracks]
+        h_xy = np.array([t.position_m[:2] for t in tracks.tracks]).reshape(-1, 2)
+        self._mot.update(t_ids, t_xy, h_ids, h_xy)
+        for name, band in self._frame_context(truth).items():
+            per = self._mot_by_context.setdefault(name, {})
+            if band not in per:
+                per[band] = MotScorer(self.spec.track_gate_m)
+            per[band].update(t_ids, t_xy, h_ids, h_xy)
+
+    # ---- reading -------------------------------------------------------------------------
+
+    def _airborne_s(self) -> float:
+        for pose, agl in zip(self._poses, self._agl, strict=True):
+            if agl >= 1.0:
+                return max(0.0, self._last_t_s - pose.t_s)
+        return 0.0
+
+    def sample(self, now_s: float) -> dict[str, float | str]:
+        """One time-series row at ``now_s`` (the CSV columns; NaN where unknown)."""
+        pose = self._poses[-1] if self._poses else None
+        bat = self._battery[-1] if self._battery else None
+        layers = self._layers
+        acc = self._map_accuracy
+        goal = self._goals[-1] if self._goals else None
+        ctrl = self._controller[-1] if self._controller else None
+        nan = math.nan
+        return {
+            "t_s": now_s,
+            "x_m": pose.position_m[0] if pose else nan,
+            "y_m": pose.position_m[1] if pose else nan,
+            "z_m": pose.position_m[2] if pose else nan,
+            "agl_m": self._agl[-1] if self._agl else nan,
+            "distance_m": self._distance_m,
+            "battery_pct": bat.remaining_pct if bat else nan,
+            "voltage_v": bat.voltage_v if bat else nan,
+            "battery_used_mah": battery_use(self._battery).used_mah if bat else nan,
+            "mapped_m2": self._mapped_m2,
+            "mapped_pct": 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else nan,
+            "observed_cells": float(np.count_nonzero(layers.layers["observed"] > 0.5))
+            if layers is not None and "observed" in layers.layers
+            else nan,
+            "mean_cell_age_s": mean_cell_age_s(layers, now_s) if layers is not None else nan,
+            "occupied_voxels": float(acc.n_map) if acc else nan,
+            "map_iou": acc.iou if acc else nan,
+            "map_precision": acc.precision if acc else nan,
+            "map_recall": acc.recall if acc else nan,
+            "goal_x_m": goal.goal_m[0] if goal else nan,
+            "goal_y_m": goal.goal_m[1] if goal else nan,
+            "controller_state": ctrl.state if ctrl else "",
+            "det_tp": float(self._det_total.tp),
+            "det_fp": float(self._det_total.fp),
+            "det_fn": float(self._det_total.fn),
+            "collisions": float(len(self._collisions)),
+        }
+
+    def summary(self, now_s: float) -> dict[str, Any]:
+        """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer)."""
+        spec = self.spec
+        times = np.array([p.t_s for p in self._poses])
+        alt = altitude_stats(times, np.array(self._agl), spec.altitude_floor_m)
+        bat = battery_use(self._battery)
+        airborne_s = self._airborne_s()
+        mapped_pct = 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
+        coverage_rate = self._mapped_m2 / airborne_s if airborne_s > 0 else math.nan
+        mean_alt = alt.mean_m
+        limit = self.swath_m_per_m * mean_alt * self.cruise_speed_mps if self.swath_m_per_m else math.nan
+        acc = self._map_accuracy
+        out: dict[str, Any] = {
+            "time": {
+                "start_s": self.start_t_s,
+                "end_s": now_s,
+                "duration_s": now_s - self.start_t_s if math.isfinite(self.start_t_s) else 0.0,
+                "airborne_s": airborne_s,
+                "complete_s": self._complete_t_s - self.start_t_s if math.isfinite(self._complete_t_s) else math.nan,
+                "complete_what": self._complete_what,
+            },
+            "coverage": {
+                "scene_area_m2": self.truth.area_m2,
+                "mapped_m2": self._mapped_m2,
+                "mapped_pct": mapped_pct,
+                "rate_m2_per_s": coverage_rate,
+                "swath_limit_m2_per_s": limit,
+                "efficiency": coverage_rate / limit if limit and math.isfinite(limit) else math.nan,
+            },
+            "map_accuracy": {
+                "t_s": self._map_accuracy_t_s,
+                "iou": acc.iou if acc else math.nan,
+                "precision": acc.precision if acc else math.nan,
+                "recall": acc.recall if acc else math.nan,
+                "recall_observed": acc.recall_observed if acc else math.nan,
+                "occupied_voxels": acc.n_map if acc else math.nan,
+                "truth_voxels": acc.n_truth if acc else int(self.truth.surface_keys.size),
+            },
+            "flight": {
+                "distance_m": self._distance_m,
+                "agl_min_m": alt.min_m,
+                "agl_mean_m": alt.mean_m,
+                "time_below_floor_s": alt.time_below_floor_s,
+                "altitude_floor_m": spec.altitude_floor_m,
+                "goals": len({g.goal_m for g in self._goals}),
+            },
+            "battery": {
+                "used_mah": bat.used_mah,
+                "used_pct": bat.used_pct,
+                "start_pct": bat.start_pct,
+                "end_pct": bat.end_pct,
+                "min_voltage_v": bat.min_voltage_v,
+            },
+            "collisions": {
+                "count": len(self._collisions),
+                "events": [
+                    {"t_s": c.t_s, "instance_id": c.instance_id, "class": c.class_name, "speed_mps": c.speed_mps}
+                    for c in self._collisions
+                ],
+            },
+            "detection": self._detection_summary(),
+            "tracking": self._tracking_summary(),
+            "depth": self._depth_summary(),
+            "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
+        }
+        return out
+
+    def _bands(self, name: str) -> tuple[tuple[float, ...], str]:
+        spec = self.spec
+        edges = {
+            "clutter": spec.clutter_bands,
+            "view_angle": spec.view_angle_bands_deg,
+            "range": spec.range_bands_m,
+            "altitude": spec.altitude_bands_m,
+        }[name]
+        return edges, CONTEXTS[name]
+
+    def _detection_summary(self) -> dict[str, Any]:
+        def first(fd: _FirstDetection | None) -> dict[str, float]:
+            if fd is None:
+                return {"t_s": math.nan, "range_m": math.nan}
+            return {"t_s": fd.t_s - self.start_t_s, "range_m": fd.range_m}
+
+        by_context: dict[str, dict[str, dict[str, float]]] = {}
+        for name, per in self._det_by_context.items():
+            edges, unit = self._bands(name)
+            by_context[name] = {band_label(k, edges, unit): per[k].as_dict() for k in sorted(per)}
+        return {
+            "source": self.detection_source,
+            "frames": self._det_frames,
+            **self._det_total.as_dict(),
+            "first_detection": first(self._first_detection_any),
+            "person_first_in_view": first(self._first_person_seen),
+            "person_first_detected": first(self._first_person_detected),
+            "by_context": by_context,
+        }
+
+    def _tracking_summary(self) -> dict[str, Any]:
+        if self._mot is None:
+            return {"frames": 0}
+        by_context: dict[str, dict[str, dict[str, float]]] = {}
+        for name, per in self._mot_by_context.items():
+            edges, unit = self._bands(name)
+            by_context[name] = {band_label(k, edges, unit): per[k].result().as_dict() for k in sorted(per)}
+        return {**self._mot.result().as_dict(), "by_context": by_context}
+
+    def _depth_summary(self) -> dict[str, Any]:
+        if not self._depth:
+            return {"frames": 0}
+        keys = sorted({k for s in self._depth for k in s.values})
+        overall = {k: _nanmean([s.values.get(k, math.nan) for s in self._depth]) for k in keys}
+        by_alt: dict[int, list[DepthMetricsSample]] = defaultdict(list)
+        for s in self._depth:
+            _, agl = self._pose_at(s.t_s)
+            by_alt[band_of(agl, self.spec.altitude_bands_m)].append(s)
+        edges, unit = self._bands("altitude")
+        return {
+            "frames": len(self._depth),
+            **overall,
+            "by_context": {
+                "altitude": {
+                    band_label(k, edges, unit): {
+                        "frames": len(v),
+                        **{key: _nanmean([s.values.get(key, math.nan) for s in v]) for key in keys},
+                    }
+                    for k, v in sorted(by_alt.items())
+                }
+            },
+        }
+
+    @property
+    def collisions(self) -> int:
+        return len(self._collisions)
+
+    @property
+    def mapped_pct(self) -> float:
+        return 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
+
+
+def _nanmean(values: list[float]) -> float:
+    arr = np.asarray(values, dtype=np.float64)
+    arr = arr[np.isfinite(arr)]
+    return float(arr.mean()) if arr.size else math.nan
