@@ -1,0 +1,461 @@
+"""Path planning over the known elevation (DEM) of the map: straight-line and 3D A*.
+
+Paths are ``(N, 3)`` float64 arrays of waypoints in ``map`` (ENU, metres; z is
+height above home, the same datum as the DEM's ``elevation_m``). The first
+waypoint is the start, the last the goal.
+
+*Straight-line planner* (:func:`plan_straight`): climb vertically to a cruise
+altitude, cruise to above the goal, descend to the goal altitude. The goal
+altitude is ``goal_height_m`` (default 50 m) above the known elevation at the
+goal; the cruise altitude is the highest known elevation along the segment plus
+``cruise_buffer_m``, and never below the goal altitude or the start altitude (the
+drone does not descend before cruising).
+
+*3D planner* (:func:`plan_astar`): A* over a voxel grid derived from the DEM at
+``voxel_xy_m`` x ``voxel_z_m`` resolution. A voxel is free if its centre is at least
+``clearance_m`` above the highest known surface in its column and the eight
+around it (so straight moves between voxel centres keep the clearance too), between
+``min_altitude_m`` and ``max_altitude_m``, inside the geofence and outside every
+no-fly polygon. Columns with no known elevation are free (``unknown_space:
+free``, with the surface assumed at ``unknown_elevation_m``) or blocked
+(``unknown_space: occupied``). 26-connected moves with metric costs, Euclidean
+heuristic (weighted by ``heuristic_weight`` >= 1 for a bounded-suboptimal, faster
+search), then line-of-sight shortcutting of the voxel path.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from uav_autonomy.core.geometry2d import as_polygon, points_in_polygon, segment_samples
+from uav_autonomy.core.grid_geometry import FloatGrid, GridSpec
+from uav_autonomy.errors import InvalidInputError, NoPathError, PlanningError
+
+__all__ = [
+    "ElevationMap",
+    "PlannerConfig",
+    "goal_altitude_m",
+    "max_elevation_along_m",
+    "plan",
+    "plan_astar",
+    "plan_straight",
+]
+
+PathArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings of the path planner (section ``planner`` of ``config/autonomy.yaml``)."""
+
+    algorithm: Literal["straight", "astar"] = "straight"
+    cruise_buffer_m: float = 50.0
+    goal_height_m: float = 50.0
+    unknown_elevation_m: float = 0.0
+    min_altitude_m: float = 5.0
+    max_altitude_m: float = 150.0
+    clearance_m: float = 15.0
+    voxel_xy_m: float = 10.0
+    voxel_z_m: float = 5.0
+    unknown_space: Literal["free", "occupied"] = "free"
+    geofence_xy_m: tuple[tuple[float, float], ...] = ()
+    no_fly_zones_xy_m: tuple[tuple[tuple[float, float], ...], ...] = ()
+    heuristic_weight: float = 1.5
+    max_expansions: int = 400_000
+    domain_margin_m: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name in ("cruise_buffer_m", "goal_height_m", "clearance_m", "domain_margin_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                msg = f"{name} must be a finite number >= 0, got {value}"
+                raise ValueError(msg)
+        for name in ("voxel_xy_m", "voxel_z_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                msg = f"{name} must be > 0, got {value}"
+                raise ValueError(msg)
+        if not (self.min_altitude_m < self.max_altitude_m):
+            msg = f"min_altitude_m ({self.min_altitude_m}) must be below max_altitude_m ({self.max_altitude_m})"
+            raise ValueError(msg)
+        if not self.heuristic_weight >= 1.0:
+            msg = f"heuristic_weight must be >= 1 (1 = optimal A*), got {self.heuristic_weight}"
+            raise ValueError(msg)
+        if self.max_expansions < 1:
+            msg = f"max_expansions must be >= 1, got {self.max_expansions}"
+            raise ValueError(msg)
+        try:
+            if self.geofence_xy_m:
+                as_polygon(self.geofence_xy_m, "geofence_xy_m")
+            for i, zone in enumerate(self.no_fly_zones_xy_m):
+                as_polygon(zone, f"no_fly_zones_xy_m[{i}]")
+        except InvalidInputError as err:
+            raise ValueError(str(err)) from err
+
+
+@dataclass(frozen=True)
+class ElevationMap:
+    """Known surface height: ``elevation_m`` ``(H, W)`` float32 metres ENU on ``spec``, NaN unknown."""
+
+    spec: GridSpec
+    elevation_m: FloatGrid
+
+    def __post_init__(self) -> None:
+        self.spec.check_layer("elevation_m", self.elevation_m)
+
+    def at(self, x_m: float, y_m: float) -> float:
+        """Known elevation at a point (NaN if unknown or off the grid)."""
+        cell = self.spec.cell_of(x_m, y_m)
+        return math.nan if cell is None else float(self.elevation_m[cell])
+
+
+def _check_point(name: str, values: tuple[float, ...]) -> None:
+    if not all(math.isfinite(v) for v in values):
+        msg = f"{name} must be finite, got {values}"
+        raise InvalidInputError(msg)
+
+
+def max_elevation_along_m(dem: ElevationMap, a_xy: tuple[float, float], b_xy: tuple[float, float]) -> float:
+    """Highest known elevation of the cells the segment ``a -> b`` crosses (NaN if none known).
+
+    Samples every quarter cell, so no crossed cell is missed by more than a corner.
+    """
+    pts = segment_samples(a_xy, b_xy, dem.spec.resolution_m * 0.25)
+    rows, cols, inside = dem.spec.cells_of(pts)
+    if not inside.any():
+        return math.nan
+    values = dem.elevation_m[rows[inside], cols[inside]]
+    known = values[np.isfinite(values)]
+    return float(known.max()) if known.size else math.nan
+
+
+def goal_altitude_m(dem: ElevationMap, goal_xy: tuple[float, float], config: PlannerConfig) -> float:
+    """``goal_height_m`` above the known elevation at the goal (``unknown_elevation_m`` if unknown)."""
+    elev = dem.at(*goal_xy)
+    if math.isnan(elev):
+        elev = config.unknown_elevation_m
+    return elev + config.goal_height_m
+
+
+def _check_airspace(points_xy: npt.NDArray[np.float64], config: PlannerConfig) -> None:
+    if config.geofence_xy_m:
+        fence = as_polygon(config.geofence_xy_m, "geofence_xy_m")
+        if not points_in_polygon(points_xy, fence).all():
+            msg = "the straight path leaves the geofence; use the 3D planner (algorithm: astar)"
+            raise NoPathError(msg)
+    for i, zone in enumerate(config.no_fly_zones_xy_m):
+        if points_in_polygon(points_xy, as_polygon(zone, f"no_fly_zones_xy_m[{i}]")).any():
+            msg = f"the straight path crosses no-fly zone {i}; use the 3D planner (algorithm: astar)"
+            raise NoPathError(msg)
+
+
+def plan_straight(
+    start_enu: tuple[float, float, float], goal_xy: tuple[float, float], dem: ElevationMap, config: PlannerConfig
+) -> PathArray:
+    """Climb-cruise-descend path from ``start_enu`` to above ``goal_xy``.
+
+    Returns:
+        ``(N, 3)`` float64 ENU waypoints, N <= 4 (duplicates dropped).
+
+    Raises:
+        InvalidInputError: non-finite start or goal.
+        NoPathError: the segment leaves the geofence or enters a no-fly zone, or
+            the cruise altitude exceeds ``max_altitude_m``.
+    """
+    _check_point("start", start_enu)
+    _check_point("goal", goal_xy)
+    sx, sy, sz = start_enu
+    goal_z = goal_altitude_m(dem, goal_xy, config)
+    highest = max_elevation_along_m(dem, (sx, sy), goal_xy)
+    if math.isnan(highest):
+        highest = config.unknown_elevation_m
+    cruise_z = max(highest + config.cruise_buffer_m, goal_z, sz)
+    if cruise_z > config.max_altitude_m:
+        msg = (
+            f"straight path needs cruise altitude {cruise_z:.1f} m > max_altitude_m {config.max_altitude_m:.1f} m "
+            f"(highest known elevation {highest:.1f} m + buffer {config.cruise_buffer_m:.1f} m)"
+        )
+        raise NoPathError(msg)
+    _check_airspace(segment_samples((sx, sy), goal_xy, max(dem.spec.resolution_m, 1.0)), config)
+    raw = [(sx, sy, sz), (sx, sy, cruise_z), (goal_xy[0], goal_xy[1], cruise_z), (goal_xy[0], goal_xy[1], goal_z)]
+    out = [raw[0]]
+    for p in raw[1:]:
+        if math.dist(p, out[-1]) > 1e-6:
+            out.append(p)
+    return np.asarray(out, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class _VoxelGrid:
+    """Padded voxel occupancy: ``free[z, y, x]`` with a blocked 1-voxel border."""
+
+    free: npt.NDArray[np.bool_]
+    x0_m: float
+    y0_m: float
+    z0_m: float
+    res_xy_m: float
+    res_z_m: float
+
+    def center(self, k: int, j: int, i: int) -> tuple[float, float, float]:
+        return (
+            self.x0_m + (i - 0.5) * self.res_xy_m,
+            self.y0_m + (j - 0.5) * self.res_xy_m,
+            self.z0_m + (k - 1) * self.res_z_m,
+        )
+
+    def index_of(self, x: float, y: float, z: float) -> tuple[int, int, int]:
+        nz, ny, nx = self.free.shape
+        i = min(max(math.floor((x - self.x0_m) / self.res_xy_m) + 1, 1), nx - 2)
+        j = min(max(math.floor((y - self.y0_m) / self.res_xy_m) + 1, 1), ny - 2)
+        k = min(max(round((z - self.z0_m) / self.res_z_m) + 1, 1), nz - 2)
+        return k, j, i
+
+
+def _surface_on_blocks(
+    dem: ElevationMap, origin_xy_m: tuple[float, float], shape: tuple[int, int], res: float
+) -> FloatGrid:
+    """Max known elevation of the DEM cells in each ``res`` block (NaN if none known)."""
+    x0, y0 = origin_xy_m
+    ny, nx = shape
+    spec = dem.spec
+    xs = spec.cell_centers_x_m()
+    ys = spec.cell_centers_y_m()
+    bi = np.floor((xs - x0) / res).astype(np.int64)
+    bj = np.floor((ys - y0) / res).astype(np.int64)
+    ok_i = (bi >= 0) & (bi < nx)
+    ok_j = (bj >= 0) & (bj < ny)
+    elev = dem.elevation_m[np.ix_(ok_j, ok_i)]
+    jj, ii = np.meshgrid(bj[ok_j], bi[ok_i], indexing="ij")
+    surface = np.full(ny * nx, -np.inf, dtype=np.float64)
+    known = np.isfinite(elev)
+    np.maximum.at(surface, (jj[known] * nx + ii[known]), elev[known].astype(np.float64))
+    surface[np.isinf(surface)] = np.nan
+    return surface.reshape(ny, nx).astype(np.float32)
+
+
+def _dilate3(grid: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """3x3 max filter. A move between neighbouring voxel centres passes over the
+    blocks around its source only, so checking a voxel against the dilated
+    surface keeps the clearance along every move, not just at voxel centres."""
+    out = cv2.dilate(grid, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return np.asarray(out, dtype=np.float32)
+
+
+def _build_voxels(
+    dem: ElevationMap, start: tuple[float, float, float], goal: tuple[float, float, float], config: PlannerConfig
+) -> _VoxelGrid:
+    x_min, x_max, y_min, y_max = dem.spec.extent_m()
+    xs = [x_min, x_max, start[0], goal[0]]
+    ys = [y_min, y_max, start[1], goal[1]]
+    if config.geofence_xy_m:
+        fence = np.asarray(config.geofence_xy_m)
+        xs += [float(fence[:, 0].min()), float(fence[:, 0].max())]
+        ys += [float(fence[:, 1].min()), float(fence[:, 1].max())]
+    res = config.voxel_xy_m
+    x0 = min(xs) - config.domain_margin_m
+    y0 = min(ys) - config.domain_margin_m
+    nx = math.ceil((max(xs) + config.domain_margin_m - x0) / res)
+    ny = math.ceil((max(ys) + config.domain_margin_m - y0) / res)
+    nz = math.floor((config.max_altitude_m - config.min_altitude_m) / config.voxel_z_m) + 1
+    if nx * ny * nz > 20_000_000:
+        msg = f"3D planning domain too large ({nx}x{ny}x{nz} voxels); raise voxel_xy_m/voxel_z_m"
+        raise PlanningError(msg)
+    raw = _surface_on_blocks(dem, (x0, y0), (ny, nx), res)
+    unknown_raw = np.isnan(raw)
+    surface = _dilate3(np.where(unknown_raw, np.float32(config.unknown_elevation_m), raw).astype(np.float32))
+    unknown = _dilate3(unknown_raw.astype(np.float32)) > 0.5
+    zs = config.min_altitude_m + np.arange(nz) * config.voxel_z_m
+    free = zs[:, None, None] >= surface[None, :, :] + config.clearance_m
+    column_ok = np.ones((ny, nx), dtype=bool)
+    if config.unknown_space == "occupied":
+        column_ok &= ~unknown
+    centers = np.stack(
+        np.meshgrid(x0 + (np.arange(nx) + 0.5) * res, y0 + (np.arange(ny) + 0.5) * res, indexing="xy"), axis=-1
+    )
+    if config.geofence_xy_m:
+        column_ok &= points_in_polygon(centers, as_polygon(config.geofence_xy_m, "geofence_xy_m"))
+    for i, zone in enumerate(config.no_fly_zones_xy_m):
+        column_ok &= ~points_in_polygon(centers, as_polygon(zone, f"no_fly_zones_xy_m[{i}]"))
+    column_ok = ~(_dilate3((~column_ok).astype(np.float32)) > 0.5)  # no corner-cutting into zones
+    free &= column_ok[None, :, :]
+    padded = np.zeros((nz + 2, ny + 2, nx + 2), dtype=bool)
+    padded[1:-1, 1:-1, 1:-1] = free
+    return _VoxelGrid(padded, x0, y0, config.min_altitude_m, res, config.voxel_z_m)
+
+
+def _nearest_free(grid: _VoxelGrid, k: int, j: int, i: int, name: str) -> tuple[int, int, int]:
+    """The free voxel nearest ``(k, j, i)`` in its column, preferring above; else nearby columns."""
+    nz = grid.free.shape[0]
+    for radius in range(4):
+        best: tuple[int, int, int] | None = None
+        best_cost = math.inf
+        for dj in range(-radius, radius + 1):
+            for di in range(-radius, radius + 1):
+                if max(abs(dj), abs(di)) != radius:
+                    continue
+                jj, ii = j + dj, i + di
+                if not (0 <= jj < grid.free.shape[1] and 0 <= ii < grid.free.shape[2]):
+                    continue
+                column = np.flatnonzero(grid.free[:, jj, ii])
+                if column.size == 0:
+                    continue
+                kk = int(column[np.argmin(np.abs(column - k) + (column < k) * nz)])
+                cost = abs(kk - k) + radius * 4
+                if cost < best_cost:
+                    best, best_cost = (kk, jj, ii), cost
+        if best is not None:
+            return best
+    msg = f"no free voxel near the {name}; it is inside terrain clearance, a no-fly zone or outside the geofence"
+    raise NoPathError(msg)
+
+
+def _line_free(grid: _VoxelGrid, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    length = math.dist(a, b)
+    n = max(2, math.ceil(length / (0.5 * min(grid.res_xy_m, grid.res_z_m))) + 1)
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    pts = np.asarray(a) + t * (np.asarray(b) - np.asarray(a))
+    i = np.floor((pts[:, 0] - grid.x0_m) / grid.res_xy_m).astype(np.int64) + 1
+    j = np.floor((pts[:, 1] - grid.y0_m) / grid.res_xy_m).astype(np.int64) + 1
+    # A point between two z layers must clear both: check the layer below (floor).
+    k = np.floor((pts[:, 2] - grid.z0_m) / grid.res_z_m + 1e-9).astype(np.int64) + 1
+    nz, ny, nx = grid.free.shape
+    if (i < 0).any() or (i >= nx).any() or (j < 0).any() or (j >= ny).any() or (k < 0).any() or (k >= nz).any():
+        return False
+    return bool(grid.free[k, j, i].all())
+
+
+def _neighbours(shape: tuple[int, ...], res_xy: float, res_z: float) -> list[tuple[int, float]]:
+    _, ny, nx = shape
+    out = []
+    for dk in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            for di in (-1, 0, 1):
+                if dk == dj == di == 0:
+                    continue
+                out.append(
+                    (
+                        dk * ny * nx + dj * nx + di,
+                        math.sqrt((di * res_xy) ** 2 + (dj * res_xy) ** 2 + (dk * res_z) ** 2),
+                    )
+                )
+    return out
+
+
+def _astar(
+    grid: _VoxelGrid, start: tuple[int, int, int], goal: tuple[int, int, int], config: PlannerConfig
+) -> list[int]:
+    shape = grid.free.shape
+    _, ny, nx = shape
+    free = grid.free.ravel()
+    s = (start[0] * ny + start[1]) * nx + start[2]
+    g_idx = (goal[0] * ny + goal[1]) * nx + goal[2]
+    gk, gj, gi = goal
+    rxy, rz = grid.res_xy_m, grid.res_z_m
+    w = config.heuristic_weight
+    g_cost = np.full(free.size, np.inf)
+    parent = np.full(free.size, -1, dtype=np.int64)
+    closed = np.zeros(free.size, dtype=bool)
+    g_cost[s] = 0.0
+    neigh = _neighbours(shape, rxy, rz)
+    plane = ny * nx
+
+    def h(idx: int) -> float:
+        k, rem = divmod(idx, plane)
+        j, i = divmod(rem, nx)
+        return w * math.sqrt(((i - gi) * rxy) ** 2 + ((j - gj) * rxy) ** 2 + ((k - gk) * rz) ** 2)
+
+    # Entries (f, -g, idx): ties on f go to the deeper node, which keeps open sets small.
+    heap: list[tuple[float, float, int]] = [(h(s), 0.0, s)]
+    expansions = 0
+    while heap:
+        _, neg_g, cur = heapq.heappop(heap)
+        if closed[cur]:
+            continue
+        if cur == g_idx:
+            path = [cur]
+            while parent[path[-1]] >= 0:
+                path.append(int(parent[path[-1]]))
+            return path[::-1]
+        closed[cur] = True
+        expansions += 1
+        if expansions > config.max_expansions:
+            msg = f"A* gave up after {config.max_expansions} expansions (max_expansions); no path found yet"
+            raise NoPathError(msg)
+        g_cur = -neg_g
+        for off, cost in neigh:
+            nxt = cur + off
+            if not free[nxt] or closed[nxt]:
+                continue
+            g_new = g_cur + cost
+            if g_new < g_cost[nxt]:
+                g_cost[nxt] = g_new
+                parent[nxt] = cur
+                heapq.heappush(heap, (g_new + h(nxt), -g_new, nxt))
+    msg = "no collision-free path: the goal is not reachable through known-free space"
+    raise NoPathError(msg)
+
+
+def plan_astar(
+    start_enu: tuple[float, float, float], goal_xy: tuple[float, float], dem: ElevationMap, config: PlannerConfig
+) -> PathArray:
+    """3D A* path from ``start_enu`` to ``goal_height_m`` above ``goal_xy``.
+
+    Returns:
+        ``(N, 3)`` float64 ENU waypoints: the start, the shortcut voxel path, the goal.
+
+    Raises:
+        InvalidInputError: non-finite start or goal.
+        NoPathError: no path through free space (or ``max_expansions`` exceeded).
+        PlanningError: the domain is too large for the voxel size.
+    """
+    _check_point("start", start_enu)
+    _check_point("goal", goal_xy)
+    goal_z = min(max(goal_altitude_m(dem, goal_xy, config), config.min_altitude_m), config.max_altitude_m)
+    goal = (goal_xy[0], goal_xy[1], goal_z)
+    grid = _build_voxels(dem, start_enu, goal, config)
+    s_vox = _nearest_free(grid, *grid.index_of(*start_enu), "start")
+    g_vox = _nearest_free(grid, *grid.index_of(*goal), "goal")
+    _, ny, nx = grid.free.shape
+    plane = ny * nx
+    voxel_path = []
+    for idx in _astar(grid, s_vox, g_vox, config):
+        k, rem = divmod(idx, plane)
+        j, i = divmod(rem, nx)
+        voxel_path.append(grid.center(k, j, i))
+    g_center = voxel_path[-1]
+    # The exact goal replaces its voxel centre when the last leg stays in free space.
+    end = goal if _line_free(grid, g_center, goal) else g_center
+    points: list[tuple[float, float, float]] = [start_enu, *voxel_path, end]
+    # Shortcut: from each kept point, jump to the farthest later point in line of sight.
+    out = [points[0], points[1]] if len(points) > 1 else [points[0]]
+    anchor = 1
+    while anchor < len(points) - 1:
+        nxt = anchor + 1
+        for cand in range(len(points) - 1, anchor, -1):
+            if _line_free(grid, points[anchor], points[cand]):
+                nxt = cand
+                break
+        out.append(points[nxt])
+        anchor = nxt
+    return _dedupe(np.asarray(out, dtype=np.float64))
+
+
+def _dedupe(path: PathArray) -> PathArray:
+    keep = [0, *[i for i in range(1, len(path)) if np.linalg.norm(path[i] - path[i - 1]) > 1e-6]]
+    return path[keep]
+
+
+def plan(
+    start_enu: tuple[float, float, float], goal_xy: tuple[float, float], dem: ElevationMap, config: PlannerConfig
+) -> PathArray:
+    """Dispatch on ``config.algorithm``."""
+    if config.algorithm == "astar":
+        return plan_astar(start_enu, goal_xy, dem, config)
+    return plan_straight(start_enu, goal_xy, dem, config)
