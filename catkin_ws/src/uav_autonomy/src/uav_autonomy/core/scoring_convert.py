@@ -1,0 +1,217 @@
+"""Messages -> scoring records, for rospy messages and rosbags messages alike.
+
+The two libraries give messages with the same field names; only time differs
+(rospy ``stamp.secs/nsecs``, rosbags ``stamp.sec/nanosec``). These functions
+read fields by name and import no ROS module, so the offline report runs where
+ROS is not installed. They are the only place messages meet scoring records.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from uav_autonomy.core.scenario_errors import ScoringError
+from uav_autonomy.core.scoring_types import (
+    BatterySample,
+    CollisionEvent,
+    ControllerSample,
+    DepthMetricsSample,
+    Detection,
+    DetectionFrame,
+    GoalSample,
+    GridSnapshot,
+    PoseSample,
+    Track,
+    TrackFrame,
+)
+
+__all__ = [
+    "battery_from_msg",
+    "collision_from_msg",
+    "controller_from_msg",
+    "depth_metrics_from_msg",
+    "detections_from_msg",
+    "goal_from_msg",
+    "grid_from_msg",
+    "image_from_msg",
+    "pose_from_odometry",
+    "stamp_s",
+    "tracks_from_msg",
+]
+
+
+def stamp_s(stamp: Any) -> float:
+    """A ROS time (rospy or rosbags) as float seconds."""
+    if hasattr(stamp, "secs"):
+        return float(stamp.secs) + float(stamp.nsecs) * 1e-9
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def _xyz(p: Any) -> tuple[float, float, float]:
+    return (float(p.x), float(p.y), float(p.z))
+
+
+def pose_from_odometry(msg: Any) -> PoseSample:
+    """``nav_msgs/Odometry`` -> pose (yaw from the orientation quaternion, ENU)."""
+    q = msg.pose.pose.orientation
+    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return PoseSample(stamp_s(msg.header.stamp), _xyz(msg.pose.pose.position), yaw)
+
+
+def battery_from_msg(msg: Any) -> BatterySample:
+    """``sensor_msgs/BatteryState`` -> battery sample.
+
+    ``percentage`` is 0..1 in ROS; consumed mAh is ``capacity - charge`` (Ah) when both
+    are known. ROS reports discharge current as negative; the record keeps it positive.
+    """
+    pct = float(msg.percentage)
+    capacity = float(msg.capacity)
+    charge = float(msg.charge)
+    consumed = (
+        (capacity - charge) * 1000.0 if math.isfinite(capacity) and math.isfinite(charge) and capacity > 0 else math.nan
+    )
+    return BatterySample(
+        t_s=stamp_s(msg.header.stamp),
+        voltage_v=float(msg.voltage),
+        remaining_pct=100.0 * pct if math.isfinite(pct) else math.nan,
+        consumed_mah=consumed,
+        current_a=abs(float(msg.current)),
+    )
+
+
+def grid_from_msg(msg: Any) -> GridSnapshot:
+    """``uav_msgs/GridLayers`` -> named ``(H, W)`` float arrays (row 0 = south).
+
+    Raises:
+        ScoringError: ``data`` does not hold ``len(names) * height * width`` values.
+    """
+    h, w = int(msg.height), int(msg.width)
+    names = list(msg.names)
+    data = np.asarray(msg.data, dtype=np.float32)
+    if data.size != len(names) * h * w:
+        msg_ = f"GridLayers has {data.size} values for {len(names)} layers of {h}x{w}"
+        raise ScoringError(msg_)
+    cube = data.reshape(len(names), h, w).astype(np.float64) if names else np.zeros((0, h, w))
+    return GridSnapshot(
+        t_s=stamp_s(msg.header.stamp),
+        resolution_m=float(msg.resolution_m),
+        origin_x_m=float(msg.origin_x_m),
+        origin_y_m=float(msg.origin_y_m),
+        layers={name: cube[k] for k, name in enumerate(names)},
+    )
+
+
+def detections_from_msg(msg: Any) -> DetectionFrame:
+    """``uav_msgs/DetectionArray`` -> detection frame."""
+    return DetectionFrame(
+        t_s=stamp_s(msg.header.stamp),
+        camera=str(msg.camera),
+        source=str(msg.source),
+        detections=tuple(
+            Detection(
+                instance_id=int(d.instance_id),
+                class_name=str(d.class_name),
+                score=float(d.score),
+                bbox_px=(int(d.x_min), int(d.y_min), int(d.x_max), int(d.y_max)),
+                range_m=float(d.range_m),
+                visible_fraction=float(d.visible_fraction),
+                position_m=_xyz(d.position),
+            )
+            for d in msg.detections
+        ),
+    )
+
+
+def tracks_from_msg(msg: Any) -> TrackFrame:
+    """``uav_msgs/TrackArray`` -> track frame."""
+    return TrackFrame(
+        t_s=stamp_s(msg.header.stamp),
+        camera=str(msg.camera),
+        tracks=tuple(
+            Track(int(t.track_id), str(t.class_name), _xyz(t.position), _xyz(t.velocity), int(t.hits))
+            for t in msg.tracks
+        ),
+    )
+
+
+def collision_from_msg(msg: Any) -> CollisionEvent:
+    """``uav_msgs/Collision`` -> collision event."""
+    return CollisionEvent(
+        t_s=stamp_s(msg.header.stamp),
+        instance_id=int(msg.instance_id),
+        class_name=str(msg.class_name),
+        position_m=_xyz(msg.position),
+        speed_mps=float(msg.speed_mps),
+    )
+
+
+def goal_from_msg(msg: Any) -> GoalSample:
+    """``uav_msgs/GoalReason`` or ``geometry_msgs/PointStamped`` -> goal sample."""
+    if hasattr(msg, "goal"):
+        return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.goal), str(msg.reason))
+    return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.point), "")
+
+
+def controller_from_msg(msg: Any, t_s: float | None = None) -> ControllerSample:
+    """``uav_msgs/ControllerState`` -> controller sample (``t_s`` if the header stamp is zero)."""
+    stamp = stamp_s(msg.header.stamp)
+    return ControllerSample(
+        t_s=stamp if stamp > 0 or t_s is None else t_s,
+        state=str(msg.state),
+        autopilot_mode=str(msg.autopilot_mode),
+        armed=bool(msg.armed),
+        in_air=bool(msg.in_air),
+    )
+
+
+def depth_metrics_from_msg(msg: Any) -> DepthMetricsSample:
+    """A per-frame depth accuracy message -> name/value sample.
+
+    Accepts any message with a header and either parallel ``names``/``values`` arrays
+    or plain float fields (every numeric field except the header is taken).
+    """
+    t = stamp_s(msg.header.stamp)
+    if hasattr(msg, "names") and hasattr(msg, "values"):
+        return DepthMetricsSample(t, {str(n): float(v) for n, v in zip(msg.names, msg.values, strict=False)})
+    fields = getattr(msg, "__slots__", None) or [f for f in vars(msg) if not f.startswith("_")]
+    values: dict[str, float] = {}
+    for name in fields:
+        value = getattr(msg, name, None)
+        if isinstance(value, int | float) and not isinstance(value, bool) and name != "header":
+            values[str(name)] = float(value)
+    return DepthMetricsSample(t, values)
+
+
+def image_from_msg(msg: Any) -> np.ndarray[Any, Any]:
+    """``sensor_msgs/Image`` (rgb8, bgr8, mono8, 32FC1, 16UC1) -> numpy array.
+
+    Raises:
+        ScoringError: an encoding this function does not know, or a size mismatch.
+    """
+    kinds: dict[str, tuple[Any, int]] = {
+        "rgb8": (np.uint8, 3),
+        "bgr8": (np.uint8, 3),
+        "mono8": (np.uint8, 1),
+        "32FC1": (np.float32, 1),
+        "16UC1": (np.uint16, 1),
+        "mono16": (np.uint16, 1),
+    }
+    if msg.encoding not in kinds:
+        msg_ = f"image encoding {msg.encoding!r} not supported; use one of {sorted(kinds)}"
+        raise ScoringError(msg_)
+    dtype, channels = kinds[msg.encoding]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    raw = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    if raw.size < h * step:
+        msg_ = f"image data has {raw.size} bytes, expected {h * step}"
+        raise ScoringError(msg_)
+    rows = raw[: h * step].reshape(h, step)[:, : w * channels * np.dtype(dtype).itemsize]
+    big_endian = bool(getattr(msg, "is_bigendian", 0))
+    arr = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(">" if big_endian else "<"))
+    arr = arr.reshape(h, w, channels) if channels > 1 else arr.reshape(h, w)
+    if msg.encoding == "bgr8":
+        arr = arr[:, :, ::-1]
+    return np.asarray(arr.astype(np.dtype(dtype).newbyteorder("=")))
