@@ -105,6 +105,7 @@ class ControllerConfig:
     lookahead_m: float = 25.0
     scripted_altitude_m: float = 50.0
     state_rate_hz: float = 5.0
+    battery_capacity_mah: float | None = None
 
     def __post_init__(self) -> None:
         if not self.setpoint_rate_hz >= 10.0:

@@ -72,8 +72,12 @@ class FeatureConfig:
     frontier_scale_m: float | None = None
     distance_scale_m: float | None = None
     home_xy_m: tuple[float, float] = (0.0, 0.0)
+    rate_hz: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0.0):
+            msg = f"rate_hz must be > 0, got {self.rate_hz}"
+            raise ValueError(msg)
         if not (math.isfinite(self.age_half_life_s) and self.age_half_life_s > 0.0):
             msg = f"age_half_life_s must be > 0, got {self.age_half_life_s}"
             raise ValueError(msg)

@@ -70,9 +70,10 @@ class PlannerConfig:
     heuristic_weight: float = 1.5
     max_expansions: int = 400_000
     domain_margin_m: float = 50.0
+    replan_distance_m: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("cruise_buffer_m", "goal_height_m", "clearance_m", "domain_margin_m"):
+        for name in ("cruise_buffer_m", "goal_height_m", "clearance_m", "domain_margin_m", "replan_distance_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 msg = f"{name} must be a finite number >= 0, got {value}"

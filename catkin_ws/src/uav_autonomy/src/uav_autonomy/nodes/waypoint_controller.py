@@ -1,0 +1,208 @@
+"""waypoint_controller: flies the autopilot over MAVLink (PX4 OFFBOARD / ArduPilot GUIDED).
+
+ROS interface:
+
+Subscribes:
+    ``/autonomy/path`` (nav_msgs/Path, map ENU): followed in AUTONOMOUS.
+    ``~manual_setpoint`` (geometry_msgs/PoseStamped, map ENU): operator override; switches to
+    MANUAL at once (taking off first on the ground); NaN/inf rejected.
+Publishes:
+    ``/uav/controller/state`` (uav_msgs/ControllerState) at ``state_rate_hz`` and on every event.
+    ``/uav/battery`` (sensor_msgs/BatteryState) from BATTERY_STATUS / SYS_STATUS, 1 Hz.
+Services:
+    ``~set_state`` (uav_msgs/SetControllerState): IDLE TAKEOFF AUTONOMOUS SCRIPTED MANUAL HOLD RTL LAND.
+Parameters:
+    ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``controller``;
+    ``~overrides`` (dict, default {}); ``~connection_url`` (str, optional): wins over both.
+
+MAVLink: connects with ``connection_url`` (pymavlink syntax), sysid/compid 1/191,
+heartbeat 1 Hz as an onboard controller, position setpoints from a ROS-time timer
+at ``setpoint_rate_hz``. The decision logic is :class:`uav_autonomy.core.controller.WaypointController`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import rospy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path as PathMsg
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Header
+
+from uav_autonomy.core.controller import ControllerConfig, ControllerState, ControllerStatus, WaypointController
+from uav_autonomy.core.patterns import expanding_square, lawnmower, waypoint_list
+from uav_autonomy.errors import InvalidInputError, InvalidTransitionError, UavAutonomyError
+from uav_autonomy.ros.autonomy_conversions import (
+    battery_msg,
+    controller_state_msg,
+    path_from_msg,
+    points_from_msgs,
+    yaw_from_quaternion,
+)
+from uav_autonomy.ros.autonomy_mavlink import MavlinkLink
+from uav_autonomy.ros.autonomy_params import default_config_path, load_section
+from uav_common.config import ConfigError
+from uav_msgs.msg import ControllerState as ControllerStateMsg
+from uav_msgs.srv import SetControllerState, SetControllerStateResponse
+
+
+def scripted_waypoints(req: object, default_altitude_m: float) -> list[tuple[float, float, float]]:
+    """Build the SCRIPTED pattern of a SetControllerState request.
+
+    Raises:
+        InvalidInputError: unknown pattern or bad pattern parameters.
+    """
+    pattern = str(req.pattern).strip().lower()  # type: ignore[attr-defined]
+    pts = points_from_msgs(req.points)  # type: ignore[attr-defined]
+    altitude = float(req.altitude_m) if req.altitude_m > 0.0 else default_altitude_m  # type: ignore[attr-defined]
+    if pattern in ("", "waypoints"):
+        arr = waypoint_list(pts)
+    elif pattern == "lawnmower":
+        arr = lawnmower([(x, y) for x, y, _ in pts], float(req.spacing_m), altitude)  # type: ignore[attr-defined]
+    elif pattern == "expanding_square":
+        if not pts:
+            text = "expanding_square needs the datum as points[0]"
+            raise InvalidInputError(text)
+        arr = expanding_square(
+            (pts[0][0], pts[0][1]),
+            float(req.spacing_m),  # type: ignore[attr-defined]
+            altitude,
+            max_radius_m=float(req.max_radius_m),  # type: ignore[attr-defined]
+        )
+    else:
+        text = f"unknown pattern '{pattern}'; use waypoints, lawnmower or expanding_square"
+        raise InvalidInputError(text)
+    return [(float(a), float(b), float(c)) for a, b, c in arr]
+
+
+class WaypointControllerNode:
+    def __init__(self, config: ControllerConfig) -> None:
+        self.config = config
+        self.core = WaypointController(config)
+        self.link = MavlinkLink(
+            config.connection_url,
+            source_system=config.source_system,
+            source_component=config.source_component,
+            target_system=config.target_system,
+            target_component=config.target_component,
+            reconnect_after_s=config.reconnect_after_s,
+        )
+        self._lock = threading.Lock()
+        self._last_state_pub_s = -math.inf
+        self._last_battery_pub_s = -math.inf
+        self._last_status: ControllerStatus | None = None
+
+    def start(self) -> None:
+        self.link.open(rospy.get_time())
+        self.pub_state = rospy.Publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
+        self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=1)
+        rospy.Subscriber("/autonomy/path", PathMsg, self.on_path, queue_size=1)
+        rospy.Subscriber("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
+        rospy.Service("~set_state", SetControllerState, self.on_set_state)
+        rospy.Timer(rospy.Duration(1.0 / self.config.setpoint_rate_hz), self.on_timer)
+
+    def shutdown(self) -> None:
+        self.link.close()
+
+    # -------------------------------------------------------------- callbacks
+    def on_timer(self, _event: object) -> None:
+        now = rospy.get_time()
+        with self._lock:
+            self.link.poll(now)
+            telemetry = self.link.telemetry()
+            actions = self.core.step(now, telemetry)
+            try:
+                self.link.execute(actions, now)
+            except InvalidInputError as err:  # the core never emits these; the shell double-checks
+                rospy.logerr(f"waypoint_controller: {err}")
+            self.link.send_heartbeat_if_due(now)
+            events = self.core.pop_events()
+            texts = self.link.pop_status_texts()
+            status = self.core.status()
+        for text in texts:
+            rospy.loginfo(f"waypoint_controller: autopilot says: {text}")
+        for event in events:
+            rospy.loginfo(f"waypoint_controller: [{status.state.value}] {event}")
+        if events or status != self._last_status or now - self._last_state_pub_s >= 1.0 / self.config.state_rate_hz:
+            self._publish_state(now)
+            self._last_status = status
+        battery = self.link.battery()
+        if battery.stamp_s is not None and now - self._last_battery_pub_s >= 1.0:
+            self._last_battery_pub_s = now
+            self.pub_battery.publish(
+                battery_msg(
+                    Header(stamp=rospy.Time.from_sec(now), frame_id="base_link"),
+                    voltage_v=battery.voltage_v,
+                    current_a=battery.current_a,
+                    remaining_frac=battery.remaining_frac,
+                    consumed_mah=battery.consumed_mah,
+                    capacity_mah=self.config.battery_capacity_mah,
+                )
+            )
+
+    def _publish_state(self, now: float) -> None:
+        self._last_state_pub_s = now
+        header = Header(stamp=rospy.Time.from_sec(now), frame_id="map")
+        self.pub_state.publish(controller_state_msg(self.core.status(), header))
+
+    def on_path(self, msg: PathMsg) -> None:
+        try:
+            with self._lock:
+                self.core.set_path(path_from_msg(msg))
+        except InvalidInputError as err:
+            rospy.logerr_throttle(5.0, f"waypoint_controller: ignoring path: {err}")
+
+    def on_manual(self, msg: PoseStamped) -> None:
+        p = msg.pose.position
+        q = msg.pose.orientation
+        yaw = yaw_from_quaternion(q) if (q.x, q.y, q.z, q.w) != (0.0, 0.0, 0.0, 0.0) else None
+        try:
+            with self._lock:
+                self.core.set_manual_setpoint((p.x, p.y, p.z), yaw, rospy.get_time())
+        except UavAutonomyError as err:
+            rospy.logerr(f"waypoint_controller: manual setpoint rejected: {err}")
+
+    def on_set_state(self, req: object) -> SetControllerStateResponse:
+        name = str(req.state).strip().upper()  # type: ignore[attr-defined]
+        try:
+            target = ControllerState[name]
+        except KeyError:
+            known = " ".join(s.value for s in ControllerState)
+            return SetControllerStateResponse(False, f"unknown state '{name}'; known: {known}", self.core.state.value)
+        try:
+            kwargs: dict[str, object] = {}
+            if target is ControllerState.SCRIPTED:
+                kwargs["waypoints_enu_m"] = scripted_waypoints(req, self.config.scripted_altitude_m)
+            elif target is ControllerState.HOLD and req.points:  # type: ignore[attr-defined]
+                kwargs["stare_at_enu_m"] = points_from_msgs(req.points)[0]  # type: ignore[attr-defined]
+            with self._lock:
+                entered = self.core.request(target, rospy.get_time(), **kwargs)  # type: ignore[arg-type]
+        except (InvalidInputError, InvalidTransitionError) as err:
+            return SetControllerStateResponse(False, str(err), self.core.state.value)
+        self._publish_state(rospy.get_time())
+        return SetControllerStateResponse(True, self.core.status().last_event, entered.value)
+
+
+def main() -> None:
+    rospy.init_node("waypoint_controller")
+    path = Path(rospy.get_param("~config", str(default_config_path())))
+    overrides = dict(rospy.get_param("~overrides", None) or {})
+    if rospy.has_param("~connection_url"):
+        overrides["connection_url"] = rospy.get_param("~connection_url")
+    try:
+        config = load_section(ControllerConfig, path, "controller", overrides)
+    except ConfigError as err:
+        rospy.logfatal(f"waypoint_controller: {err}")
+        raise SystemExit(1) from err
+    node = WaypointControllerNode(config)
+    try:
+        node.start()
+    except UavAutonomyError as err:
+        rospy.logfatal(f"waypoint_controller: {err}")
+        raise SystemExit(1) from err
+    rospy.on_shutdown(node.shutdown)
+    rospy.loginfo(f"waypoint_controller: MAVLink on {config.connection_url}")
+    rospy.spin()
