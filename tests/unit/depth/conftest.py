@@ -12,9 +12,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from synthetic_scene import SyntheticScene, default_scene, nadir_rotation  # noqa: E402
+from synthetic_scene import SyntheticScene, default_scene, nadir_rotation
 
-from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera  # noqa: E402
+from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera
 
 HEADING_RAD = 0.3
 ALTITUDE_M = 50.0

@@ -39,7 +39,8 @@ def save_views(folder: Path, rendered: Rendered, est: np.ndarray) -> None:
 def run_pair(camera: PinholeCamera, first: ColorFrame, second: ColorFrame, cfg: EstimatorConfig) -> DepthEstimate:
     est = MotionStereoEstimator(camera, cfg)
     skipped = est.process(first)
-    assert isinstance(skipped, SkippedFrame) and skipped.reason is SkipReason.NO_HISTORY
+    assert isinstance(skipped, SkippedFrame)
+    assert skipped.reason is SkipReason.NO_HISTORY
     out = est.process(second)
     assert isinstance(out, DepthEstimate), out
     return out
@@ -81,7 +82,8 @@ def test_noisy_poses_are_repaired_by_refinement(camera: PinholeCamera, flight: l
     save_views(artifacts, flight[1], fixed.depth_m)
     ev_raw = evaluate_depth(raw.depth_m, flight[1].depth_m, cfg_eval).overall
     ev_fixed = evaluate_depth(fixed.depth_m, flight[1].depth_m, cfg_eval).overall
-    assert fixed.refine is not None and fixed.refine.applied
+    assert fixed.refine is not None
+    assert fixed.refine.applied
     assert fixed.refine.rms_after_px < 0.2
     assert fixed.refine.rms_before_px > 3 * fixed.refine.rms_after_px
     assert ev_fixed.within_abs > 0.93
@@ -97,13 +99,17 @@ def test_gate_skips_are_counted(camera: PinholeCamera, flight: list[Rendered]) -
     for k in range(4):
         out = est.process(ColorFrame(k * 10**8, rgb, flight_pose(0.01 * k)))
     assert isinstance(out, SkippedFrame)
-    assert out.reason is SkipReason.NO_PARTNER and out.pairing is PairVerdict.BASELINE_TOO_SHORT
+    assert out.reason is SkipReason.NO_PARTNER
+    assert out.pairing is PairVerdict.BASELINE_TOO_SHORT
     # Climbing straight up: the baseline lies along the nadir optical axis.
     out = est.process(ColorFrame(2 * 10**9, rgb, flight_pose(0.0, altitude_m=60.0)))
-    assert isinstance(out, SkippedFrame) and out.pairing is PairVerdict.AXIAL_MOTION
+    assert isinstance(out, SkippedFrame)
+    assert out.pairing is PairVerdict.AXIAL_MOTION
     stats = est.stats
-    assert stats.frames_in == 5 and stats.estimates == 0
-    assert stats.skipped[SkipReason.NO_HISTORY] == 1 and stats.skipped[SkipReason.NO_PARTNER] == 4
+    assert stats.frames_in == 5
+    assert stats.estimates == 0
+    assert stats.skipped[SkipReason.NO_HISTORY] == 1
+    assert stats.skipped[SkipReason.NO_PARTNER] == 4
     assert stats.pair_rejections[PairVerdict.BASELINE_TOO_SHORT] == 1 + 2 + 3
     assert stats.pair_rejections[PairVerdict.AXIAL_MOTION] == 4
 
@@ -114,10 +120,12 @@ def test_bad_input_is_an_error_or_a_counted_skip(camera: PinholeCamera, flight: 
         est.process(ColorFrame(1, np.zeros((240, 321, 3), np.uint8), flight_pose(0.0)))
     nan_pose = CameraPose(np.full((3, 3), np.nan), np.zeros(3))
     out = est.process(ColorFrame(2, flight[0].frame.rgb, nan_pose))
-    assert isinstance(out, SkippedFrame) and out.reason is SkipReason.INVALID_POSE
+    assert isinstance(out, SkippedFrame)
+    assert out.reason is SkipReason.INVALID_POSE
     assert est.history == ()  # never used as a partner
     assert isinstance(est.remember(flight[0].frame), SkippedFrame)
-    assert est.stats.skipped[SkipReason.BUSY] == 1 and len(est.history) == 1
+    assert est.stats.skipped[SkipReason.BUSY] == 1
+    assert len(est.history) == 1
     # A frame remembered while busy is a valid partner.
     assert isinstance(est.process(flight[1].frame), DepthEstimate)
     # Time going backwards (a bag replayed from the start) resets the history.

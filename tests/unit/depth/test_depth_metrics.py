@@ -60,7 +60,9 @@ def test_per_class_breakdown_from_instance_ids() -> None:
     est = np.array([[20.0, 25.0, np.nan], [20.2, np.nan, 21.0]], np.float32)
     instances = np.array([[1, 1, 2], [7, 7, 0]], np.uint16)
     lut = class_lut({1: "a", 2: "b", 7: "b", 9: "other"}, CFG.classes)
-    assert lut[9] == UNKNOWN_CLASS and lut[0] == UNKNOWN_CLASS and lut[7] == 1
+    assert lut[9] == UNKNOWN_CLASS
+    assert lut[0] == UNKNOWN_CLASS
+    assert lut[7] == 1
     cls = class_index_image(instances, lut)
     ev = evaluate_depth(est, gt, CFG, cls)
     a, b = ev.classes
@@ -77,7 +79,9 @@ def test_perfect_and_empty_estimates() -> None:
     assert (perfect.coverage, perfect.within_abs, perfect.delta1, perfect.abs_rel, perfect.rmse_m) == (1, 1, 1, 0, 0)
     empty = evaluate_depth(np.full_like(gt, np.nan), gt, CFG).overall
     assert empty.coverage == 0.0
-    assert math.isnan(empty.within_abs) and math.isnan(empty.rmse_m) and math.isnan(empty.median_abs_err_m)
+    assert math.isnan(empty.within_abs)
+    assert math.isnan(empty.rmse_m)
+    assert math.isnan(empty.median_abs_err_m)
 
 
 def test_evaluation_limits_and_bad_shapes() -> None:

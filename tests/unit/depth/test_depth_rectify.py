@@ -38,7 +38,7 @@ def pixels_of(pose: CameraPose, pts_map: np.ndarray) -> tuple[np.ndarray, np.nda
     shift=st.integers(0, 40),
 )
 def test_rectified_rows_align_and_disparity_is_f_b_over_z(
-    heading: float,
+    *heading: float,
     move_dir: float,
     climb: float,
     baseline: float,
@@ -100,7 +100,8 @@ def test_warp_and_coverage_mask() -> None:
     out = warp_to_rectified(img, rect.homography_ref, rect.camera)
     assert np.array_equal(out[:480, :640], img)
     mask = coverage_mask(CAM, rect.homography_ref, rect.camera, erode_px=3)
-    assert mask[240, 320] and mask.mean() > 0.95
+    assert mask[240, 320]
+    assert mask.mean() > 0.95
 
 
 def test_degenerate_geometry_raises() -> None:

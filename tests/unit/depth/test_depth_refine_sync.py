@@ -50,7 +50,8 @@ def test_refinement_falls_back_to_the_prior_without_texture(camera: PinholeCamer
         flat, flat, camera=camera, ref_pose=flight[1].frame.pose, partner_pose=flight[0].frame.pose,
         config=PoseRefineConfig(),
     )  # fmt: skip
-    assert not out.applied and "tracked corners" in out.detail
+    assert not out.applied
+    assert "tracked corners" in out.detail
     assert out.pose is flight[0].frame.pose
 
 
@@ -68,7 +69,8 @@ def test_sampson_and_pose_from_relative() -> None:
     ref = CameraPose(rotation_about([1, 0, 0], 0.3), np.array([1.0, 2.0, 3.0]))
     partner = pose_from_relative(ref, rot, t)
     rot2, t2 = ref.relative_to(partner)
-    assert rot2 == pytest.approx(rot) and t2 == pytest.approx(t)
+    assert rot2 == pytest.approx(rot)
+    assert t2 == pytest.approx(t)
 
 
 def test_stamp_buffer() -> None:
@@ -79,7 +81,9 @@ def test_stamp_buffer() -> None:
     assert buf.closest(25, 4) is None
     assert buf.closest(26, 5) == (30, "c")
     buf.put(40, "d")  # evicts the oldest
-    assert len(buf) == 3 and buf.oldest_stamp_ns() == 20 and buf.newest_stamp_ns() == 40
+    assert len(buf) == 3
+    assert buf.oldest_stamp_ns() == 20
+    assert buf.newest_stamp_ns() == 40
     buf.put(40, "e")
     assert buf.closest(40, 0) == (40, "e")
     with pytest.raises(ValueError, match="capacity"):
@@ -102,8 +106,13 @@ def test_depth_core_is_pure() -> None:
                 names = [node.module]
             for name in names:
                 root = name.split(".")[0]
-                assert root not in FORBIDDEN and not root.endswith("_msgs"), f"{path.name} imports {name}"
-            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute):
-                # no global numpy RNG: np.random.<fn> other than default_rng/Generator
-                if node.value.attr == "random" and node.attr not in {"default_rng", "Generator"}:
-                    pytest.fail(f"{path.name} uses np.random.{node.attr}")
+                assert root not in FORBIDDEN, f"{path.name} imports {name}"
+                assert not root.endswith("_msgs"), f"{path.name} imports {name}"
+            # No global numpy RNG: np.random.<fn> other than default_rng/Generator.
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Attribute)
+                and node.value.attr == "random"
+                and node.attr not in {"default_rng", "Generator"}
+            ):
+                pytest.fail(f"{path.name} uses np.random.{node.attr}")

@@ -47,7 +47,8 @@ def test_reference_depth_filters_range_and_shape() -> None:
     assert np.isnan(depth[0, 0])
     assert np.isnan(reference_depth(disp, CAM, rect, min_depth_m=0.5, max_depth_m=39.0)).all()
     lut = reference_lookup(CAM, rect)
-    assert lut.map_x[5, 7] == pytest.approx(7.0) and lut.map_y[5, 7] == pytest.approx(5.0)
+    assert lut.map_x[5, 7] == pytest.approx(7.0)
+    assert lut.map_y[5, 7] == pytest.approx(5.0)
     with pytest.raises(DepthInputError, match="rectified shape"):
         reference_depth(disp[1:], CAM, rect, min_depth_m=0.5, max_depth_m=400.0)
 
@@ -60,12 +61,15 @@ def test_points_from_depth_back_project_and_pack_color() -> None:
     rgb = np.zeros((*CAM.shape, 3), np.uint8)
     rgb[0, 0] = (255, 16, 1)
     pts = points_from_depth(depth, rgb, CAM)
-    assert pts.xyz_m.shape == (2, 3) and pts.xyz_m.dtype == np.float32
+    assert pts.xyz_m.shape == (2, 3)
+    assert pts.xyz_m.dtype == np.float32
     assert pts.xyz_m[0] == pytest.approx([20.0 * -79.5 / 80, 20.0 * -59.5 / 80, 20.0])
     assert pts.xyz_m[1] == pytest.approx([10.0 * -0.5 / 80, 10.0 * -0.5 / 80, 10.0])
     assert pts.rgb_packed.view(np.uint32)[0] == 0xFF1001
     rec = pts.as_records()
-    assert rec.shape == (2, 4) and rec.dtype == np.float32 and rec.tobytes()[12:16] == np.uint32(0xFF1001).tobytes()
+    assert rec.shape == (2, 4)
+    assert rec.dtype == np.float32
+    assert rec.tobytes()[12:16] == np.uint32(0xFF1001).tobytes()
     strided = points_from_depth(np.full(CAM.shape, 5.0, np.float32), rgb, CAM, stride_px=4)
     assert len(strided.xyz_m) == 30 * 40
     with pytest.raises(DepthInputError, match="must both be"):

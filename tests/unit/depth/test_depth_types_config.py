@@ -42,7 +42,7 @@ def test_camera_from_matrix_and_validation() -> None:
     assert rays[239, 319] == pytest.approx([-0.5 / 320, -0.5 / 321, 1.0])
     with pytest.raises(DepthInputError, match="positive focal"):
         PinholeCamera(640, 480, 0.0, 320.0, 320, 240)
-    with pytest.raises(DepthInputError, match="skew|must be"):
+    with pytest.raises(DepthInputError, match=r"\[\[fx,0,cx\]"):
         PinholeCamera.from_matrix([[320.0, 1.0, 319.5], [0, 321.0, 239.5], [0, 0, 1]], 640, 480)
 
 
@@ -58,7 +58,8 @@ def test_check_rgb_image_rejects_wrong_size_and_type() -> None:
 def test_pose_validity_and_relative_pose() -> None:
     a = CameraPose(nadir_rotation(0.2), np.array([1.0, 2.0, 50.0]))
     b = CameraPose(rotation_about([0, 0, 1], 0.1) @ nadir_rotation(0.2), np.array([4.0, 2.0, 51.0]))
-    assert a.is_valid and b.is_valid
+    assert a.is_valid
+    assert b.is_valid
     rot, trans = a.relative_to(b)
     # A point seen by a, mapped into b, equals the same map point seen from b.
     p_map = np.array([3.0, -7.0, 2.0])
