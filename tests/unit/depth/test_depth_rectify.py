@@ -38,7 +38,8 @@ def pixels_of(pose: CameraPose, pts_map: np.ndarray) -> tuple[np.ndarray, np.nda
     shift=st.integers(0, 40),
 )
 def test_rectified_rows_align_and_disparity_is_f_b_over_z(
-    *heading: float,
+    *,
+    heading: float,
     move_dir: float,
     climb: float,
     baseline: float,
