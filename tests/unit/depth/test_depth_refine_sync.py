@@ -12,7 +12,7 @@ from synthetic_scene import rotation_about
 
 from uav_autonomy.core.depth_config import PoseRefineConfig
 from uav_autonomy.core.depth_refine import pose_from_relative, refine_relative_pose, sampson_px
-from uav_autonomy.core.depth_sync import StampBuffer
+from uav_autonomy.core.depth_sync import PoseHistory, StampBuffer
 from uav_autonomy.core.depth_types import CameraPose, PinholeCamera
 
 CORE = Path(__file__).resolve().parents[3] / "catkin_ws/src/uav_autonomy/src/uav_autonomy/core"
@@ -116,3 +116,31 @@ def test_depth_core_is_pure() -> None:
                 and node.attr not in {"default_rng", "Generator"}
             ):
                 pytest.fail(f"{path.name} uses np.random.{node.attr}")
+
+
+def test_pose_history_interpolates_and_refuses_gaps() -> None:
+    hist = PoseHistory(10, max_gap_ns=200, max_extrapolation_ns=20)
+    r0 = rotation_about([0, 0, 1], 0.0)
+    r1 = rotation_about([0, 0, 1], 0.4)
+    hist.add(100, CameraPose(r0, np.array([0.0, 0.0, 10.0])))
+    hist.add(200, CameraPose(r1, np.array([4.0, 0.0, 10.0])))
+    hist.add(600, CameraPose(r1, np.array([8.0, 0.0, 10.0])))
+    mid = hist.at(125)
+    assert mid is not None
+    assert mid.position_map_m == pytest.approx([1.0, 0.0, 10.0])
+    assert angle_deg(mid.rotation_map_optical, rotation_about([0, 0, 1], 0.1)) < 1e-9
+    exact = hist.at(200)
+    assert exact is not None
+    assert exact.position_map_m == pytest.approx([4.0, 0.0, 10.0])
+    assert hist.at(400) is None  # 400 ns gap between neighbours
+    assert hist.at(90) is not None  # 10 ns before the first: within extrapolation
+    assert hist.at(50) is None
+    assert hist.at(700) is None
+    hist.add(650, CameraPose(np.full((3, 3), np.nan), np.zeros(3)))
+    assert hist.at(630) is None  # a NaN neighbour
+
+
+def test_pose_compose() -> None:
+    body = CameraPose(rotation_about([0, 0, 1], math.pi / 2), np.array([1.0, 2.0, 30.0]))
+    cam = body.compose(np.eye(3), [0.5, 0.0, -0.1])  # 0.5 m forward, 0.1 m below
+    assert cam.position_map_m == pytest.approx([1.0, 2.5, 29.9])

@@ -1,16 +1,17 @@
 """Exceptions of the motion-stereo depth estimator and its evaluator.
 
-The package-wide hierarchy (``uav_autonomy.errors``) belongs to the autonomy
-component; these depth-specific errors have their own root, :class:`DepthError`,
-so callers can catch everything this component raises in one place.
+They derive from the package root :class:`uav_autonomy.errors.UavAutonomyError`;
+:class:`DepthError` lets callers catch everything this component raises at once.
 """
 
 from __future__ import annotations
 
+from uav_autonomy.errors import UavAutonomyError
+
 __all__ = ["DepthError", "DepthGeometryError", "DepthInputError"]
 
 
-class DepthError(Exception):
+class DepthError(UavAutonomyError):
     """Root of every error raised by the depth estimation and evaluation code."""
 
 

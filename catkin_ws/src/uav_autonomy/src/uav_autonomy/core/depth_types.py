@@ -127,6 +127,12 @@ class CameraPose:
         """Unit optical axis (optical z) expressed in ``map``."""
         return np.asarray(self.rotation_map_optical[:, 2], dtype=np.float64)
 
+    def compose(self, rotation_self_child: npt.ArrayLike, translation_self_child_m: npt.ArrayLike) -> CameraPose:
+        """Pose of a child frame given its fixed transform from this frame (``x_self = R x_child + t``)."""
+        rot = np.asarray(rotation_self_child, dtype=np.float64)
+        trans = np.asarray(translation_self_child_m, dtype=np.float64)
+        return CameraPose(self.rotation_map_optical @ rot, self.position_map_m + self.rotation_map_optical @ trans)
+
     def relative_to(self, other: CameraPose) -> tuple[FloatArray, FloatArray]:
         """``(R, t)`` mapping points from this camera's frame into ``other``'s: ``x_o = R x + t``."""
         r_other_t = other.rotation_map_optical.T
