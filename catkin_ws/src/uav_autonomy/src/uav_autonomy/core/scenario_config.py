@@ -222,6 +222,8 @@ class StopCriteria:
     time_limit_s: float = 300.0
     mapped_pct: float | None = None
     target_found: bool = False
+    #: With ``target_found``: keep holding over the person this long before stopping.
+    after_target_found_s: float = 5.0
     #: Stop (and the report flags it) when the battery falls to this remaining %.
     battery_reserve_pct: float | None = 20.0
     on_collision: bool = True
@@ -229,8 +231,8 @@ class StopCriteria:
     wall_timeout_s: float = 3600.0
 
     def __post_init__(self) -> None:
-        if self.time_limit_s <= 0 or self.wall_timeout_s <= 0:
-            msg = "time_limit_s and wall_timeout_s must be > 0"
+        if self.time_limit_s <= 0 or self.wall_timeout_s <= 0 or self.after_target_found_s < 0:
+            msg = "time_limit_s and wall_timeout_s must be > 0, after_target_found_s >= 0"
             raise ValueError(msg)
         if self.mapped_pct is not None and not 0 < self.mapped_pct <= 100:
             msg = f"mapped_pct must be within (0, 100], got {self.mapped_pct}"
