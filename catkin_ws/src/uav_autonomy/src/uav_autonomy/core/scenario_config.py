@@ -18,7 +18,7 @@ import itertools
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from uav_common.config import ConfigError, load_config
 
@@ -146,7 +146,8 @@ class AutonomySpec:
     cruise_speed_mps: float = 8.0
     takeoff_alt_m: float = 30.0
     age_half_life_s: float = 60.0
-    planner: str = "straight_line"
+    #: Path planner algorithm: ``straight`` (climb, cruise, descend) or ``astar`` (3D over the voxel map).
+    planner: Literal["straight", "astar"] = "straight"
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.weights) - set(FEATURE_NAMES))
