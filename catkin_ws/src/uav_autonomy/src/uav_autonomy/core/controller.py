@@ -599,6 +599,7 @@ class WaypointController:
             after = self._after_takeoff
             self._after_takeoff = ControllerState.HOLD
             self._enter(after, f"takeoff complete at {pos[2]:.1f} m: entering {after.value}")
+            tg.hold_enu_m = target  # hold where the takeoff aimed, not where it was declared done
             return self._setpoint(t)
         return target, tg.yaw_enu_rad
 
