@@ -1,0 +1,264 @@
+"""mission_manager: runs a scenario: starts the flight, confirms the person, stops the run.
+
+ROS interface:
+
+Subscribes:
+    ``/uav/controller/state`` (uav_msgs/ControllerState), ``/uav/battery`` (sensor_msgs/BatteryState),
+    ``/scenario/metrics`` (uav_msgs/RunMetrics: % mapped, collisions), ``/uav/sim_state`` (uav_msgs/SimState:
+    crashed), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the scenario's
+    ``search.detection_topic`` (uav_msgs/DetectionArray, frames of ``search.camera`` only).
+Publishes:
+    ``/scenario/config`` (std_msgs/String, latched): the scenario file's text, for the bag and the report.
+    ``/scenario/status`` (uav_msgs/ScenarioStatus) at 2 Hz and on every change.
+    ``/autonomy/target_point`` (geometry_msgs/PointStamped): the confirmed person (goal selector's target).
+Calls:
+    ``<~controller>/set_state`` (uav_msgs/SetControllerState): AUTONOMOUS or SCRIPTED (pattern from the
+    scenario) once the controller's link is up, HOLD staring at the person once confirmed.
+Parameters:
+    ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
+    ``~shutdown_on_stop`` (bool, default true): exit ``~linger_s`` wall seconds after a stop criterion is
+    met (launch it ``required="true"`` so roslaunch ends the run); ``~linger_s`` (float, 2.0).
+
+Decisions are :mod:`uav_autonomy.core.scenario_mission`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import rospy
+from geometry_msgs.msg import Point, PointStamped
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Header, String
+
+from uav_autonomy.core.scenario_config import MissionKind, Scenario, Strategy, load_scenario
+from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_mission import (
+    ConfirmationGate,
+    Phase,
+    StopReason,
+    check_stop,
+    controller_state_for,
+    flying_phase,
+)
+from uav_autonomy.core.scenario_params import scripted_request
+from uav_autonomy.core.scoring_convert import detections_from_msg
+from uav_autonomy.ros.scoring_msgs import status_msg
+from uav_common.config import ConfigError
+from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioStatus, SimState
+from uav_msgs.srv import SetControllerState, SetControllerStateRequest
+
+FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
+
+
+class MissionManager:
+    def __init__(self, scenario: Scenario, controller_ns: str, *, shutdown_on_stop: bool, linger_s: float) -> None:
+        self.scenario = scenario
+        self.controller_ns = controller_ns.rstrip("/")
+        self.shutdown_on_stop = shutdown_on_stop
+        self.linger_s = linger_s
+        search = scenario.search
+        self.gate = (
+            ConfirmationGate(search.confirm_detections, search.confirm_window_s)
+            if scenario.mission is MissionKind.SEARCH_AND_RESCUE and search is not None
+            else None
+        )
+        self.phase = Phase.STARTING
+        self.start_sim_s: float | None = None
+        self.start_wall_s = time.monotonic()
+        self.controller: ControllerState | None = None
+        self.battery_pct = math.nan
+        self.mapped_pct = math.nan
+        self.collisions = 0
+        self.crashed = False
+        self.goal: tuple[float, float, float] | None = None
+        self.found_at_s: float | None = None
+        self.person: tuple[float, float, float] | None = None
+        self.stop_reason: StopReason | None = None
+        self.stop_wall_s: float | None = None
+        self.flight_requested = False
+        self.hold_requested = False
+        self.rtf_window: deque[tuple[float, float]] = deque(maxlen=20)
+        self.status_pub: rospy.Publisher | None = None
+        self.target_pub: rospy.Publisher | None = None
+
+    def start(self) -> None:
+        config_pub = rospy.Publisher("/scenario/config", String, queue_size=1, latch=True)
+        assert self.scenario.source is not None
+        config_pub.publish(String(data=self.scenario.source.read_text()))
+        self.status_pub = rospy.Publisher("/scenario/status", ScenarioStatus, queue_size=10, latch=True)
+        self.target_pub = rospy.Publisher("/autonomy/target_point", PointStamped, queue_size=1, latch=True)
+        rospy.Subscriber("/uav/controller/state", ControllerState, self.on_controller, queue_size=10)
+        rospy.Subscriber("/uav/battery", BatteryState, self.on_battery, queue_size=10)
+        rospy.Subscriber("/scenario/metrics", RunMetrics, self.on_metrics, queue_size=5)
+        rospy.Subscriber("/uav/sim_state", SimState, self.on_sim_state, queue_size=10)
+        rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=5)
+        if self.gate is not None and self.scenario.search is not None:
+            rospy.Subscriber(self.scenario.search.detection_topic, DetectionArray, self.on_detections, queue_size=20)
+        rospy.Timer(rospy.Duration(0.5), self.on_tick)
+
+    # ---- inputs ----------------------------------------------------------------------------
+
+    def on_controller(self, msg: ControllerState) -> None:
+        self.controller = msg
+
+    def on_battery(self, msg: BatteryState) -> None:
+        self.battery_pct = 100.0 * msg.percentage if math.isfinite(msg.percentage) else math.nan
+
+    def on_metrics(self, msg: RunMetrics) -> None:
+        self.mapped_pct = msg.mapped_pct
+        self.collisions = max(self.collisions, msg.collisions)
+
+    def on_sim_state(self, msg: SimState) -> None:
+        self.crashed = self.crashed or msg.crashed
+
+    def on_goal(self, msg: PointStamped) -> None:
+        self.goal = (msg.point.x, msg.point.y, msg.point.z)
+
+    def on_detections(self, msg: DetectionArray) -> None:
+        if self.gate is None or self.scenario.search is None:
+            return
+        frame = detections_from_msg(msg)
+        if frame.camera != self.scenario.search.camera or self.found_at_s is not None or self.start_sim_s is None:
+            return
+        found = self.gate.update(frame.t_s, frame.detections)
+        if found is None:
+            return
+        self.found_at_s = found.t_s
+        self.person = found.position_m
+        rospy.loginfo(f"mission_manager: person confirmed at {found.position_m} after {found.detections} detections")
+        if self.target_pub is not None:
+            self.target_pub.publish(
+                PointStamped(header=Header(stamp=msg.header.stamp, frame_id="map"), point=Point(*found.position_m))
+            )
+        self.phase = Phase.HOLDING
+        self._request_hold()
+
+    # ---- actions ---------------------------------------------------------------------------
+
+    def _call(self, request: SetControllerStateRequest) -> bool:
+        service = f"{self.controller_ns}/set_state"
+        try:
+            rospy.wait_for_service(service, timeout=2.0)
+            response = rospy.ServiceProxy(service, SetControllerState)(request)
+        except (rospy.ROSException, rospy.ServiceException) as err:
+            rospy.logwarn_throttle(10.0, f"mission_manager: {service} failed: {err}")
+            return False
+        if not response.success:
+            rospy.logwarn_throttle(10.0, f"mission_manager: {request.state} refused: {response.message}")
+        return bool(response.success)
+
+    def _request_flight(self) -> None:
+        if self.scenario.strategy is Strategy.AUTONOMOUS:
+            req = SetControllerStateRequest(state=controller_state_for(self.scenario))
+        else:
+            spec = scripted_request(self.scenario)
+            req = SetControllerStateRequest(
+                state=spec["state"],
+                pattern=spec["pattern"],
+                points=[Point(*p) for p in spec["points"]],
+                spacing_m=spec["spacing_m"],
+                altitude_m=spec["altitude_m"],
+                max_radius_m=spec["max_radius_m"],
+            )
+        self.flight_requested = self._call(req)
+
+    def _request_hold(self) -> None:
+        assert self.person is not None
+        self.hold_requested = self._call(SetControllerStateRequest(state="HOLD", points=[Point(*self.person)]))
+
+    def on_tick(self, _event: Any) -> None:
+        now = rospy.get_time()
+        if now <= 0:
+            return
+        if self.start_sim_s is None:
+            self.start_sim_s = now
+        self.rtf_window.append((time.monotonic(), now))
+        ctrl = self.controller
+        if self.stop_reason is None:
+            if ctrl is not None and ctrl.link_ok and not self.flight_requested and self.phase is Phase.STARTING:
+                self._request_flight()
+                if self.flight_requested:
+                    self.phase = Phase.TAKEOFF
+            if self.phase is Phase.TAKEOFF and ctrl is not None and ctrl.state in FLYING:
+                self.phase = flying_phase(self.scenario)
+            if self.person is not None and not self.hold_requested:
+                self._request_hold()
+            self.stop_reason = check_stop(
+                self.scenario.stop,
+                elapsed_s=now - self.start_sim_s,
+                mapped_pct=self.mapped_pct,
+                battery_pct=self.battery_pct,
+                collisions=self.collisions,
+                crashed=self.crashed,
+                found_for_s=now - self.found_at_s if self.found_at_s is not None else None,
+                wall_elapsed_s=time.monotonic() - self.start_wall_s,
+            )
+            if self.stop_reason is not None:
+                rospy.loginfo(f"mission_manager: stop ({self.stop_reason.value}) at {now - self.start_sim_s:.1f} s")
+                self.phase = (
+                    Phase.FAILED if self.stop_reason in (StopReason.CRASHED, StopReason.COLLISION) else Phase.DONE
+                )
+                self.stop_wall_s = time.monotonic()
+        self._publish(now)
+        if (
+            self.stop_wall_s is not None
+            and self.shutdown_on_stop
+            and time.monotonic() - self.stop_wall_s >= self.linger_s
+        ):
+            rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
+
+    def _rtf(self) -> float:
+        if len(self.rtf_window) < 2:
+            return math.nan
+        (w0, s0), (w1, s1) = self.rtf_window[0], self.rtf_window[-1]
+        return (s1 - s0) / (w1 - w0) if w1 > w0 else math.nan
+
+    def _publish(self, now: float) -> None:
+        if self.status_pub is None or self.start_sim_s is None:
+            return
+        ctrl = self.controller
+        fields = {
+            "scenario": self.scenario.name,
+            "mission": self.scenario.mission.value,
+            "strategy": self.scenario.strategy.value,
+            "phase": self.phase.value,
+            "sim_time_s": now - self.start_sim_s,
+            "real_time_factor": self._rtf(),
+            "mapped_pct": self.mapped_pct,
+            "battery_pct": self.battery_pct,
+            "controller_state": ctrl.state if ctrl else "",
+            "autopilot_mode": ctrl.autopilot_mode if ctrl else "",
+            "goal": self.goal,
+            "target_found": self.person is not None,
+            "target_position": self.person,
+            "complete_time_s": self.found_at_s - self.start_sim_s if self.found_at_s is not None else math.nan,
+            "stop": self.stop_reason is not None,
+            "stop_reason": self.stop_reason.value if self.stop_reason else "",
+        }
+        self.status_pub.publish(status_msg(rospy.Time.from_sec(now), fields))
+
+
+def main() -> None:
+    rospy.init_node("mission_manager")
+    try:
+        scenario = load_scenario(Path(rospy.get_param("~scenario")))
+    except KeyError:
+        rospy.logfatal("mission_manager: the ~scenario parameter (path of the scenario file) is required")
+        sys.exit(2)
+    except (ConfigError, ScenarioError) as err:
+        rospy.logfatal(f"mission_manager: {err}")
+        sys.exit(2)
+    node = MissionManager(
+        scenario,
+        str(rospy.get_param("~controller", "/waypoint_controller")),
+        shutdown_on_stop=bool(rospy.get_param("~shutdown_on_stop", True)),
+        linger_s=float(rospy.get_param("~linger_s", 2.0)),
+    )
+    node.start()
+    rospy.spin()

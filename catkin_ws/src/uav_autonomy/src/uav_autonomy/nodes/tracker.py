@@ -1,0 +1,67 @@
+"""tracker: a position-only multi-object tracker over a detection topic.
+
+ROS interface:
+
+Subscribes:
+    ``~detections`` (uav_msgs/DetectionArray, default ``/detections/ground_truth``): only
+    frames from ``~camera`` are tracked; detections need ``position`` (map ENU).
+Publishes:
+    ``/scenario/tracks`` (uav_msgs/TrackArray): confirmed tracks after each frame, stamped
+    with the frame's stamp (so the scorer pairs them with the ground truth of that image).
+Parameters:
+    ``~camera`` (str, default ``forward``); ``~gate_m`` (float, 5.0); ``~min_hits`` (int, 2);
+    ``~max_coast_s`` (float, 3.0).
+
+The tracker never reads ground-truth ids: identities are its own (core: ``tracking.PositionTracker``).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rospy
+
+from uav_autonomy.core.scenario_errors import ScoringError
+from uav_autonomy.core.scoring_convert import detections_from_msg
+from uav_autonomy.core.tracking import PositionTracker, TrackerConfig
+from uav_autonomy.ros.scoring_msgs import tracks_msg
+from uav_msgs.msg import DetectionArray, TrackArray
+
+
+class TrackerNode:
+    def __init__(self, camera: str, config: TrackerConfig) -> None:
+        self.camera = camera
+        self.tracker = PositionTracker(config)
+        self.pub: rospy.Publisher | None = None
+
+    def start(self, detections_topic: str) -> None:
+        self.pub = rospy.Publisher("/scenario/tracks", TrackArray, queue_size=20)
+        rospy.Subscriber(detections_topic, DetectionArray, self.on_detections, queue_size=20)
+
+    def on_detections(self, msg: DetectionArray) -> None:
+        frame = detections_from_msg(msg)
+        if frame.camera != self.camera or self.pub is None:
+            return
+        try:
+            tracks = self.tracker.update(frame.t_s, frame.detections)
+        except ScoringError as err:  # e.g. /clock jumped back after a bag loop: start over
+            rospy.logwarn_throttle(5.0, f"tracker reset: {err}")
+            self.tracker = PositionTracker(self.tracker.config)
+            tracks = self.tracker.update(frame.t_s, frame.detections)
+        self.pub.publish(tracks_msg(msg.header.stamp, frame.camera, tracks))
+
+
+def main() -> None:
+    rospy.init_node("tracker")
+    try:
+        config = TrackerConfig(
+            gate_m=float(rospy.get_param("~gate_m", 5.0)),
+            min_hits=int(rospy.get_param("~min_hits", 2)),
+            max_coast_s=float(rospy.get_param("~max_coast_s", 3.0)),
+        )
+    except ValueError as err:
+        rospy.logfatal(f"tracker: bad parameter: {err}")
+        sys.exit(2)
+    node = TrackerNode(str(rospy.get_param("~camera", "forward")), config)
+    node.start(str(rospy.get_param("~detections", "/detections/ground_truth")))
+    rospy.spin()
