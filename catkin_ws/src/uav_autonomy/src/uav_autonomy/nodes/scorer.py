@@ -172,6 +172,7 @@ class ScorerNode:
         with self.lock:
             if self.start_s is None:
                 self.start_s = t - msg.sim_time_s
+                self.scorer.start_t_s = self.start_s  # the run starts with the mission, not the first record
             if math.isfinite(msg.complete_time_s):
                 self.scorer.mark_complete(
                     self.start_s + msg.complete_time_s, "person confirmed" if msg.target_found else "mission complete"
