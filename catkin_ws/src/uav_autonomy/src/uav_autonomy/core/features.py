@@ -178,9 +178,13 @@ def age_feature(last_seen_s: npt.NDArray[np.float32], now_s: float, half_life_s:
         # Decay is monotonic in time, so the max of the decay is the decay of the max.
         seen = np.fmax.reduce(seen, axis=2) if seen.shape[2] else np.full(seen.shape[:2], np.nan, np.float32)
     k = math.log(2.0) / half_life_s
-    # exp(k * (t - now)), with the affine part in float32 and the exp in OpenCV (SIMD).
-    arg = seen * np.float32(k)
-    arg -= np.float32(k * now_s)
+    # exp(k * (t - now)) in float32 with the exp in OpenCV (SIMD). Subtracting the
+    # float32-rounded now first is exact for nearby times (Sterbenz); the rounding
+    # residual is added back as a float64 scalar.
+    ref = np.float32(now_s)
+    arg = seen - ref
+    arg *= np.float32(k)
+    arg += np.float32(k * (float(ref) - now_s))
     np.minimum(arg, np.float32(0.0), out=arg)  # seen "in the future" (clock skew) scores 1
     out = cv2.exp(arg)
     cv2.patchNaNs(out, 0.0)

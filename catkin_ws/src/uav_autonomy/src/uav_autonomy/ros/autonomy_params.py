@@ -22,7 +22,7 @@ T = TypeVar("T")
 
 def default_config_path() -> Path:
     """``<repo>/config/autonomy.yaml`` (this file is ``<repo>/catkin_ws/src/uav_autonomy/src/uav_autonomy/ros/``)."""
-    return Path(__file__).resolve().parents[5] / "config" / "autonomy.yaml"
+    return Path(__file__).resolve().parents[6] / "config" / "autonomy.yaml"
 
 
 def merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
