@@ -18,8 +18,8 @@ import rospy  # noqa: E402
 import rostest  # noqa: E402
 from geometry_msgs.msg import Point, PointStamped  # noqa: E402
 from nav_msgs.msg import MapMetaData, Odometry  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from nav_msgs.msg import Path as PathMsg  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
 from uav_autonomy.core.features import frontier_feature  # noqa: E402
@@ -103,7 +103,7 @@ class Pipeline(unittest.TestCase):
     def goal_cell_of(self, x: float, y: float) -> tuple[float, float]:
         return (OX + (math.floor((x - OX) / RES) + 0.5) * RES, OY + (math.floor((y - OY) / RES) + 0.5) * RES)
 
-    def test_pipeline(self) -> None:  # noqa: PLR0915 - one pipeline, checked stage by stage
+    def test_pipeline(self) -> None:
         now = rospy.get_time()
         msg, layers = make_layers(now)
         self.pub_layers.publish(msg)
