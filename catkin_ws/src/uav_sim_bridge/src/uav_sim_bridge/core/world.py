@@ -1,0 +1,321 @@
+"""The simulated world: generation, identity (hash), queries, save/load and export.
+
+Typical use::
+
+    cfg = load_world_config(Path("config/worlds/default.yaml"))
+    world = load_or_generate(cfg, cache_dir)          # or generate_world(cfg)
+    world.height_at(x, y)                              # terrain, vectorised
+    world.surface_height_at(x, y)                      # highest surface incl. roads/roofs
+    keys = world.surface_voxels(0.5)                   # (N, 3) int64 voxel keys
+    world.export_mesh(Path("world.ply")); world.export_objects_json(Path("objects.json"))
+
+The world frame *is* ``map`` (x East, y North, z Up, metres); the terrain is 0 at
+home (0, 0), flat around it, and no object comes within ``home_clear_radius_m``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from uav_common.config import from_mapping, to_mapping
+from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID, build_world_parts
+from uav_sim_bridge.core.mesh import LOD_FAR, MeshArrays
+from uav_sim_bridge.core.objects import ObjectPose, WorldObject
+from uav_sim_bridge.core.roads import RoadNetwork
+from uav_sim_bridge.core.spatial import TriangleGrid
+from uav_sim_bridge.core.terrain import Heightfield
+from uav_sim_bridge.core.voxels import object_surface_voxels, terrain_surface_voxels, union_keys
+from uav_sim_bridge.core.world_config import ObjectClass, WorldConfig
+from uav_sim_bridge.errors import ConfigError, WorldFileError
+
+__all__ = [
+    "GENERATOR_VERSION",
+    "ObjectClass",
+    "ObjectPose",
+    "World",
+    "WorldObject",
+    "config_key",
+    "generate_world",
+    "load_or_generate",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+# Bump when the generator's output changes for the same config (invalidates caches).
+GENERATOR_VERSION = 1
+_FILES = ("world.npz", "objects.json", "meta.json")
+
+
+@dataclass(frozen=True, eq=False)
+class World:
+    """A generated (or loaded) world; immutable.
+
+    Attributes:
+        config: the configuration it was generated from.
+        terrain: the terrain heightfield (already conformed to the roads).
+        mesh: the whole world as one triangle soup with per-vertex instance ids; the
+            faces of people and vehicles are at their generated poses.
+        objects: one record per instance id (``objects[i].instance_id == i + 1``; the
+            first is the terrain).
+        roads: road centrelines and village centres.
+    """
+
+    config: WorldConfig
+    terrain: Heightfield
+    mesh: MeshArrays
+    objects: tuple[WorldObject, ...]
+    roads: RoadNetwork
+    _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    # ------------------------------------------------------------------ identity
+    @cached_property
+    def hash(self) -> str:
+        """sha256 hex digest of everything generated (mesh, objects, terrain, roads)."""
+        h = hashlib.sha256()
+        h.update(f"uav_sim_bridge.world v{GENERATOR_VERSION}".encode())
+        for arr in (
+            self.terrain.heights_m,
+            np.asarray((*self.terrain.origin_m, self.terrain.resolution_m)),
+            self.mesh.vertices_m,
+            self.mesh.normals,
+            self.mesh.colors,
+            self.mesh.vertex_instance,
+            self.mesh.faces,
+            self.mesh.face_lod,
+            *self.roads.polylines,
+            self.roads.villages_m,
+        ):
+            a = np.ascontiguousarray(arr)
+            h.update(str(a.dtype).encode() + str(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(json.dumps([o.to_json() for o in self.objects], sort_keys=True).encode())
+        return h.hexdigest()
+
+    def world_hash(self) -> str:
+        """Same as :attr:`hash` (the documented API name)."""
+        return self.hash
+
+    # ------------------------------------------------------------------ lookups
+    @cached_property
+    def instance_class(self) -> npt.NDArray[np.uint8]:
+        """``(max_id + 1,)`` class id of each instance id (index 0 is the sky)."""
+        lut = np.zeros(len(self.objects) + 1, dtype=np.uint8)
+        for obj in self.objects:
+            lut[obj.instance_id] = int(obj.object_class)
+        return lut
+
+    def object(self, instance_id: int) -> WorldObject:
+        """The object with this instance id.
+
+        Raises:
+            KeyError: no such instance.
+        """
+        if not 1 <= instance_id <= len(self.objects):
+            msg = f"no world object with instance id {instance_id}"
+            raise KeyError(msg)
+        return self.objects[instance_id - 1]
+
+    def objects_of_class(self, cls: ObjectClass) -> list[WorldObject]:
+        return [o for o in self.objects if o.object_class is cls]
+
+    @cached_property
+    def face_instance(self) -> npt.NDArray[np.uint32]:
+        """``(F,)`` instance id of each face."""
+        return np.asarray(self.mesh.vertex_instance[self.mesh.faces[:, 0]], dtype=np.uint32)
+
+    def triangles(self, face_mask: npt.NDArray[np.bool_] | None = None) -> FloatArray:
+        """``(F, 3, 3)`` float64 triangle vertices (all faces, or the masked ones)."""
+        faces = self.mesh.faces if face_mask is None else self.mesh.faces[face_mask]
+        return np.asarray(self.mesh.vertices_m[faces], dtype=np.float64)
+
+    # ------------------------------------------------------------------ geometry
+    def height_at(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> FloatArray:
+        """Terrain height (vectorised); exact on the rendered terrain triangles."""
+        return self.terrain.height_at(x_m, y_m)
+
+    @cached_property
+    def static_grid(self) -> TriangleGrid:
+        """Full-detail triangles of the static non-terrain objects (roads, buildings, trees, custom)."""
+        cls = self.instance_class[self.face_instance]
+        mask = (
+            (cls != ObjectClass.TERRAIN)
+            & (cls != ObjectClass.PERSON)
+            & (cls != ObjectClass.VEHICLE)
+            & (self.mesh.face_lod != LOD_FAR)
+        )
+        return TriangleGrid(self.triangles(mask), self.face_instance[mask], cell_m=8.0)
+
+    def surface_height_at(self, x_m: float, y_m: float) -> tuple[float, int]:
+        """Highest static surface (terrain, road, roof, tree top) at ``(x, y)``: ``(z_m, instance_id)``."""
+        z_obj, iid = self.static_grid.highest_surface(x_m, y_m)
+        z_ter = float(self.terrain.height_at(x_m, y_m))
+        if z_obj > z_ter:
+            return z_obj, iid
+        return z_ter, TERRAIN_INSTANCE_ID
+
+    def surface_voxels(self, resolution_m: float) -> IntArray:
+        """``(N, 3)`` int64 keys ``floor(p / resolution_m)`` of the observable surfaces (see :mod:`.voxels`)."""
+        if not resolution_m > 0:
+            msg = f"resolution_m must be > 0, got {resolution_m}"
+            raise ValueError(msg)
+        key = f"voxels:{resolution_m!r}"
+        if key not in self._cache:
+            cls = self.instance_class[self.face_instance]
+            covered = []
+            for obj in self.objects_of_class(ObjectClass.BUILDING):
+                rot = obj.pose.rotation()[:2, :2]
+                sx, sy = obj.size_m[0] / 2, obj.size_m[1] / 2
+                local = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]])
+                covered.append(local @ rot.T + np.asarray(obj.pose.position_m[:2]))
+            road_tris = self.triangles(cls == ObjectClass.ROAD)
+            covered.extend(t[:, :2] for t in road_tris)
+            terrain_keys = terrain_surface_voxels(self.terrain, resolution_m, covered)
+            obj_mask = (cls != ObjectClass.TERRAIN) & (self.mesh.face_lod != LOD_FAR)
+            obj_keys = object_surface_voxels(self.triangles(obj_mask), resolution_m, self.terrain)
+            keys = union_keys(terrain_keys, obj_keys)
+            keys.setflags(write=False)
+            self._cache[key] = keys
+        out: IntArray = self._cache[key]
+        return out
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, directory: Path) -> None:
+        """Write the world to ``directory`` (created; existing files are replaced atomically)."""
+        directory = Path(directory)
+        directory.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+        try:
+            lines = self.roads.polylines
+            np.savez(
+                tmp / "world.npz",
+                heights_m=self.terrain.heights_m,
+                terrain_grid=np.array([*self.terrain.origin_m, self.terrain.resolution_m]),
+                vertices_m=self.mesh.vertices_m,
+                normals=self.mesh.normals,
+                colors=self.mesh.colors,
+                vertex_instance=self.mesh.vertex_instance,
+                faces=self.mesh.faces,
+                face_lod=self.mesh.face_lod,
+                road_points=np.concatenate(lines) if lines else np.zeros((0, 2)),
+                road_lengths=np.array([len(p) for p in lines], dtype=np.int64),
+                villages_m=self.roads.villages_m,
+                road_width_m=np.array(self.roads.width_m),
+            )
+            (tmp / "objects.json").write_text(json.dumps([o.to_json() for o in self.objects]))
+            meta = {
+                "generator_version": GENERATOR_VERSION,
+                "world_hash": self.hash,
+                "config_key": config_key(self.config),
+                "config": to_mapping(self.config),
+            }
+            (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+            if directory.exists():
+                shutil.rmtree(directory)
+            os.replace(tmp, directory)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    @staticmethod
+    def load(directory: Path) -> World:
+        """Read a world written by :meth:`save` and check its hash.
+
+        Raises:
+            WorldFileError: missing or corrupt files, or a hash mismatch.
+        """
+        directory = Path(directory)
+        missing = [f for f in _FILES if not (directory / f).is_file()]
+        if missing:
+            msg = f"{directory}: not a saved world (missing {', '.join(missing)})"
+            raise WorldFileError(msg)
+        try:
+            meta = json.loads((directory / "meta.json").read_text())
+            objects = tuple(WorldObject.from_json(o) for o in json.loads((directory / "objects.json").read_text()))
+            cfg = from_mapping(WorldConfig, meta["config"], source=str(directory / "meta.json"), prefix="config")
+            with np.load(directory / "world.npz") as z:
+                grid = z["terrain_grid"]
+                terrain = Heightfield((float(grid[0]), float(grid[1])), float(grid[2]), z["heights_m"])
+                mesh = MeshArrays(
+                    z["vertices_m"], z["normals"], z["colors"], z["vertex_instance"], z["faces"], z["face_lod"]
+                )
+                split = np.cumsum(z["road_lengths"])[:-1]
+                lines = tuple(np.split(z["road_points"], split)) if len(z["road_lengths"]) else ()
+                roads = RoadNetwork(lines, z["villages_m"], float(z["road_width_m"]))
+        except (OSError, ValueError, KeyError, TypeError, json.JSONDecodeError, ConfigError) as err:
+            msg = f"{directory}: corrupt saved world: {err}"
+            raise WorldFileError(msg) from err
+        if meta.get("generator_version") != GENERATOR_VERSION:
+            msg = f"{directory}: saved by generator v{meta.get('generator_version')}, this is v{GENERATOR_VERSION}"
+            raise WorldFileError(msg)
+        world = World(cfg, terrain, mesh, objects, roads)
+        if world.hash != meta.get("world_hash"):
+            msg = f"{directory}: world hash mismatch (files modified or truncated)"
+            raise WorldFileError(msg)
+        return world
+
+    # ------------------------------------------------------------------ export
+    def export_mesh(self, path: Path, *, include_far_lod: bool = False) -> None:
+        """Write the full-detail mesh with vertex colors; the format follows the suffix (.ply, .glb, .obj, .stl)."""
+        from uav_sim_bridge.core.world_io import export_mesh  # noqa: PLC0415 (trimesh is heavy)
+
+        export_mesh(self, Path(path), include_far_lod=include_far_lod)
+
+    def export_objects_json(self, path: Path) -> None:
+        """Write the object list (instance id, class, name, pose, size) and the world identity as JSON."""
+        from uav_sim_bridge.core.world_io import export_objects_json  # noqa: PLC0415
+
+        export_objects_json(self, Path(path))
+
+
+def generate_world(cfg: WorldConfig) -> World:
+    """Generate the world of ``cfg`` (deterministic: the same config gives the same :attr:`World.hash`)."""
+    parts = build_world_parts(cfg)
+    return World(cfg, parts.terrain, parts.mesh, parts.objects, parts.roads)
+
+
+def _file_digest(path: Path) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as err:
+        msg = f"cannot read {path}: {err.strerror}"
+        raise WorldFileError(msg) from err
+
+
+def config_key(cfg: WorldConfig) -> str:
+    """Digest of a config and the contents of the files it names (the cache key)."""
+    data = to_mapping(cfg)
+    files = []
+    if cfg.terrain.heightmap_image is not None:
+        files.append(_file_digest(cfg.terrain.heightmap_image))
+    files.extend(_file_digest(c.mesh) for c in cfg.custom_objects)
+    blob = json.dumps({"v": GENERATOR_VERSION, "config": data, "files": files}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def load_or_generate(cfg: WorldConfig, cache_dir: Path) -> World:
+    """Load the cached world of ``cfg`` from ``cache_dir``, or generate and cache it.
+
+    A corrupt or stale cache entry is regenerated, never trusted.
+    """
+    key = config_key(cfg)
+    slot = Path(cache_dir) / f"{cfg.name}-{key[:16]}"
+    if slot.is_dir():
+        try:
+            return World.load(slot)
+        except WorldFileError:
+            pass  # regenerate below
+    world = generate_world(cfg)
+    world.save(slot)
+    return world

@@ -1,0 +1,133 @@
+"""GLSL 3.30 shaders of the renderer: one multi-render-target pass and a sky pass.
+
+Outputs (``location``): 0 RGBA8 color, 1 R32F z-depth in metres, 2 R32UI instance id.
+The color is the vertex base color times a world-space value-noise texture (three
+octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
+term, with a little distance haze.  Around home the terrain gets a concrete landing
+pad with an "H".
+"""
+
+from __future__ import annotations
+
+MAIN_VS = """
+#version 330
+uniform mat4 u_mvp;
+uniform mat4 u_view;
+in vec3 in_pos;
+in vec3 in_nrm;
+in vec3 in_col;
+in uint in_inst;
+out vec3 v_pos;
+out vec3 v_nrm;
+out vec3 v_col;
+out float v_z;
+flat out uint v_inst;
+void main() {
+    v_pos = in_pos;
+    v_nrm = in_nrm;
+    v_col = in_col;
+    v_inst = in_inst;
+    v_z = -(u_view * vec4(in_pos, 1.0)).z;
+    gl_Position = u_mvp * vec4(in_pos, 1.0);
+}
+"""
+
+MAIN_FS = """
+#version 330
+uniform vec3 u_sun;
+uniform vec3 u_eye;
+uniform float u_focal_px;
+uniform float u_texture_gain;
+uniform float u_haze_m;
+uniform float u_pad_half_m;
+uniform uint u_pad_instance;
+uniform vec3 u_haze_color;
+in vec3 v_pos;
+in vec3 v_nrm;
+in vec3 v_col;
+in float v_z;
+flat in uint v_inst;
+layout(location = 0) out vec4 f_color;
+layout(location = 1) out float f_depth;
+layout(location = 2) out uint f_inst;
+
+float hash3(vec3 p) {
+    p = fract(p * 0.3183099 + 0.1);
+    p *= 17.0;
+    return fract(p.x * p.y * p.z * (p.x + p.y + p.z));
+}
+float vnoise(vec3 x) {
+    vec3 i = floor(x);
+    vec3 f = fract(x);
+    f = f * f * (3.0 - 2.0 * f);
+    return mix(mix(mix(hash3(i), hash3(i + vec3(1, 0, 0)), f.x),
+                   mix(hash3(i + vec3(0, 1, 0)), hash3(i + vec3(1, 1, 0)), f.x), f.y),
+               mix(mix(hash3(i + vec3(0, 0, 1)), hash3(i + vec3(1, 0, 1)), f.x),
+                   mix(hash3(i + vec3(0, 1, 1)), hash3(i + vec3(1, 1, 1)), f.x), f.y), f.z);
+}
+// one octave with cell size `cell_m`, faded to its mean once a cell covers < ~1.5 pixels
+float octave(vec3 p, float cell_m, float px_m) {
+    float w = clamp((cell_m / px_m - 1.5) / 2.0, 0.0, 1.0);
+    return mix(0.5, vnoise(p / cell_m), w);
+}
+vec3 pad(vec3 base) {
+    vec2 q = abs(v_pos.xy);
+    if (max(q.x, q.y) > u_pad_half_m) return base;
+    vec3 c = vec3(0.62, 0.62, 0.60);
+    float r = length(v_pos.xy);
+    if (abs(r - 0.72 * u_pad_half_m) < 0.35) c = vec3(0.95, 0.80, 0.15);
+    vec2 h = v_pos.xy / (0.45 * u_pad_half_m);
+    bool bar = abs(h.x) > 0.55 && abs(h.x) < 0.85 && abs(h.y) < 1.0;
+    bool mid = abs(h.x) <= 0.55 && abs(h.y) < 0.15;
+    if (bar || mid) c = vec3(0.95, 0.95, 0.93);
+    return c;
+}
+void main() {
+    vec3 n = normalize(v_nrm);
+    if (!gl_FrontFacing) n = -n;
+    float px_m = max(v_z, 1e-3) / u_focal_px;
+    float tex = 0.5 * octave(v_pos, 0.45, px_m) + 0.3 * octave(v_pos, 1.7, px_m) + 0.2 * octave(v_pos, 7.0, px_m);
+    tex = 1.0 + u_texture_gain * (tex - 0.5);
+    vec3 base = v_col;
+    if (v_inst == u_pad_instance) base = pad(base);
+    float sun = max(dot(n, u_sun), 0.0);
+    float sky = 0.5 + 0.5 * n.z;
+    vec3 lit = base * tex * (0.78 * sun + 0.34 * sky + 0.06);
+    float dist = length(v_pos - u_eye);
+    float haze = 1.0 - exp(-dist / u_haze_m);
+    f_color = vec4(clamp(mix(lit, u_haze_color, 0.55 * haze), 0.0, 1.0), 1.0);
+    f_depth = v_z;
+    f_inst = v_inst;
+}
+"""
+
+SKY_VS = """
+#version 330
+in vec2 in_xy;
+void main() { gl_Position = vec4(in_xy, 1.0, 1.0); }
+"""
+
+SKY_FS = """
+#version 330
+uniform mat3 u_r_map_optical;
+uniform vec4 u_k;       // fx fy cx cy
+uniform float u_height;
+uniform vec3 u_sun;
+uniform vec3 u_haze_color;
+layout(location = 0) out vec4 f_color;
+layout(location = 1) out float f_depth;
+layout(location = 2) out uint f_inst;
+void main() {
+    // window coordinates -> OpenCV pixel (row 0 at the top, pixel centres at integers)
+    vec2 px = vec2(gl_FragCoord.x - 0.5, u_height - gl_FragCoord.y - 0.5);
+    vec3 ray = vec3((px.x - u_k.z) / u_k.x, (px.y - u_k.w) / u_k.y, 1.0);
+    vec3 d = normalize(u_r_map_optical * ray);
+    float t = clamp(d.z, 0.0, 1.0);
+    vec3 zenith = vec3(0.30, 0.50, 0.82);
+    vec3 c = mix(u_haze_color, zenith, pow(t, 0.6));
+    c += vec3(1.0, 0.95, 0.8) * pow(max(dot(d, u_sun), 0.0), 200.0);
+    f_color = vec4(clamp(c, 0.0, 1.0), 1.0);
+    f_depth = uintBitsToFloat(0x7FC00000u);  // quiet NaN: no return
+    f_inst = 0u;
+}
+"""

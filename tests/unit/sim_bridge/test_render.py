@@ -1,0 +1,186 @@
+"""GL renderer against the world model: depth, ids, projection, culling; PNGs for people."""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from uav_sim_bridge.core import visualize
+from uav_sim_bridge.core.camera import CameraConfig, CameraModel, MountConfig, look_at
+from uav_sim_bridge.core.objects import ObjectPose
+from uav_sim_bridge.core.transforms import RigidTransform
+from uav_sim_bridge.core.world import World
+from uav_sim_bridge.core.world_config import ObjectClass
+from uav_sim_bridge.errors import RenderError
+from uav_sim_bridge.render import Renderer, RenderSettings
+
+NADIR = CameraModel.from_config("nadir", CameraConfig(hfov_deg=90.0, mount=MountConfig(rpy_deg=(0, 90, 0))))
+FORWARD = CameraModel.from_config("forward", CameraConfig(hfov_deg=90.0, mount=MountConfig(rpy_deg=(0, 25, 0))))
+
+
+@pytest.fixture(scope="module")
+def flat_renderer(flat_world: World):
+    r = Renderer(flat_world)
+    yield r
+    r.close()
+
+
+@pytest.mark.parametrize("altitude_m", [50.0, 12.5, 120.0])
+def test_nadir_centre_depth_is_altitude_over_flat_ground(flat_renderer: Renderer, altitude_m: float) -> None:
+    pose = NADIR.optical_pose(RigidTransform.from_rpy([3.0, -7.0, altitude_m], yaw_rad=0.7))
+    frame = flat_renderer.render(NADIR, pose)
+    h, w = frame.depth_m.shape
+    centre = frame.depth_m[h // 2 - 1 : h // 2 + 1, w // 2 - 1 : w // 2 + 1]
+    assert np.abs(centre - altitude_m).max() < 0.01
+    # z-depth of a nadir view over flat ground is the altitude everywhere
+    assert np.nanmax(np.abs(frame.depth_m - altitude_m)) < 0.01
+    assert (frame.instance_id == 1).all()
+
+
+def _world_points(frame_depth: np.ndarray, cam: CameraModel, pose: RigidTransform) -> np.ndarray:
+    rows, cols = np.mgrid[0 : cam.height, 0 : cam.width]
+    pts = cam.unproject(np.stack([cols.ravel(), rows.ravel()], 1), frame_depth.ravel())
+    return pose.apply(pts).reshape(cam.height, cam.width, 3)
+
+
+POSES = [((0.0, 0.0), 0.4), ((150.0, -60.0), 2.0), ((-250.0, 130.0), -0.6), ((60.0, 200.0), 1.2)]
+
+
+@pytest.mark.parametrize(("xy", "yaw"), POSES)
+def test_segmentation_ids_and_depth_match_the_object_list(
+    default_world: World, default_renderer: Renderer, xy: tuple[float, float], yaw: float
+) -> None:
+    z = float(default_world.height_at(*xy)) + 40.0
+    base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
+    for cam in (NADIR, FORWARD):
+        pose = cam.optical_pose(base)
+        frame = default_renderer.render(cam, pose)
+        ids = frame.instance_id
+        assert ids.max() <= len(default_world.objects)
+        sky = ids == 0
+        assert np.array_equal(sky, np.isnan(frame.depth_m))
+        p = _world_points(frame.depth_m, cam, pose)
+        # terrain pixels lie on the terrain heightfield
+        ter = ids == 1
+        err = np.abs(p[ter][:, 2] - default_world.height_at(p[ter][:, 0], p[ter][:, 1]))
+        assert np.percentile(err, 99.9) < 0.05, err.max()
+        # object pixels lie inside (or on) the object's box
+        for iid in np.unique(ids[~sky & ~ter]):
+            obj = default_world.object(int(iid))
+            local = obj.pose.to_local(p[ids == iid])
+            sx, sy, sz = obj.size_m
+            building = obj.object_class is ObjectClass.BUILDING
+            tol = 1.0 if building else 0.6  # roof overhang, trunks
+            below = 4.6 if building else 1.0  # walls reach down to the lowest corner of the lot
+            if obj.object_class is ObjectClass.ROAD:
+                lo = np.array(obj.pose.position_m) - [sx / 2, sy / 2, 0]
+                inside = np.all((p[ids == iid] >= lo - 0.5) & (p[ids == iid] <= lo + [sx, sy, sz] + 0.5), axis=1)
+            else:
+                inside = (
+                    (np.abs(local[:, 0]) <= sx / 2 + tol)
+                    & (np.abs(local[:, 1]) <= sy / 2 + tol)
+                    & (local[:, 2] >= -below)
+                    & (local[:, 2] <= sz + 0.1)
+                )
+            assert inside.mean() > 0.995, (obj.name, inside.mean())
+
+
+def test_people_appear_where_the_camera_model_projects_them(default_world: World, default_renderer: Renderer) -> None:
+    seen = 0
+    for person in default_world.objects_of_class(ObjectClass.PERSON)[:10]:
+        target = person.center_m
+        pose = look_at(target + np.array([0.0, -6.0, 8.0]), target)
+        cam = CameraModel.simple(320, 240, 60.0)
+        frame = default_renderer.render(cam, pose)
+        uv, z = cam.project(pose.inverse().apply(target[None]))
+        u, v = np.rint(uv[0]).astype(int)
+        if frame.instance_id[v, u] == person.instance_id:
+            seen += 1
+            assert abs(float(frame.depth_m[v, u]) - z[0]) < 0.6  # the body's front face is nearer than its centre
+    assert seen >= 8  # a few may hide behind a tree
+
+
+def test_moving_a_person(default_world: World) -> None:
+    renderer = Renderer(default_world)
+    try:
+        person = default_world.objects_of_class(ObjectClass.PERSON)[0]
+        cam = CameraModel.simple(160, 120, 60.0)
+        spot = np.array([40.0, 0.0])
+        ground = float(default_world.height_at(*spot))
+        pose = look_at([spot[0], spot[1] - 5.0, ground + 6.0], [spot[0], spot[1], ground + 0.8])
+        assert not (renderer.render(cam, pose).instance_id == person.instance_id).any()
+        renderer.set_object_pose(person.instance_id, ObjectPose((spot[0], spot[1], ground), 0.3))
+        assert (renderer.render(cam, pose).instance_id == person.instance_id).sum() > 100
+        assert renderer.object_pose(person.instance_id).position_m[0] == spot[0]
+        solo = renderer.render_unoccluded_ids(cam, pose)
+        assert set(np.unique(solo)) <= {0} | {o.instance_id for o in default_world.objects if o.is_dynamic}
+        with pytest.raises(KeyError, match="not a movable"):
+            renderer.set_object_pose(1, ObjectPose((0.0, 0.0, 0.0)))
+    finally:
+        renderer.close()
+
+
+def test_culling_and_lod_do_not_change_near_content(default_world: World, default_renderer: Renderer) -> None:
+    full = Renderer(default_world, RenderSettings(frustum_culling=False, lod_distance_m=1e9))
+    culled_only = Renderer(default_world, RenderSettings(lod_distance_m=1e9))
+    try:
+        base = RigidTransform.from_rpy([-250.0, 130.0, float(default_world.height_at(-250, 130)) + 35], yaw_rad=-0.6)
+        for cam in (NADIR, FORWARD):
+            pose = cam.optical_pose(base)
+            a = full.render(cam, pose)
+            b = culled_only.render(cam, pose)
+            np.testing.assert_array_equal(a.instance_id, b.instance_id)
+            np.testing.assert_array_equal(a.color_rgb, b.color_rgb)
+            assert culled_only.last_triangles < full.last_triangles
+            c = default_renderer.render(cam, pose)  # with LOD: differs only far away
+            differ = a.instance_id != c.instance_id
+            if cam is FORWARD:
+                assert differ.any()  # the forward camera sees distant low-detail trees
+            if differ.any():
+                assert (np.nan_to_num(a.depth_m[differ], nan=1e9) > 100.0).mean() > 0.95
+    finally:
+        full.close()
+        culled_only.close()
+
+
+def test_renderer_is_bound_to_its_thread(flat_renderer: Renderer) -> None:
+    errors: list[BaseException] = []
+
+    def other() -> None:
+        try:
+            flat_renderer.render(NADIR, look_at([0, 0, 10], [0, 0, 0]))
+        except BaseException as err:
+            errors.append(err)
+
+    t = threading.Thread(target=other)
+    t.start()
+    t.join(10)
+    assert len(errors) == 1
+    assert isinstance(errors[0], RenderError)
+
+
+def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, artifacts: Path) -> None:
+    """Writes color / depth / class / instance PNGs of both cameras at a few places, and an overview."""
+    for name, (xy, yaw) in zip(["home", "village_east", "village_west", "north"], POSES, strict=True):
+        z = float(default_world.height_at(*xy)) + 50.0
+        base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
+        for cam in (NADIR, FORWARD):
+            f = default_renderer.render(cam, cam.optical_pose(base))
+            Image.fromarray(f.color_rgb).save(artifacts / f"{name}_{cam.name}_color.png")
+            Image.fromarray(visualize.depth_image(f.depth_m)).save(artifacts / f"{name}_{cam.name}_depth.png")
+            Image.fromarray(visualize.class_image(f.instance_id, default_world.instance_class)).save(
+                artifacts / f"{name}_{cam.name}_class.png"
+            )
+            Image.fromarray(visualize.instance_image(f.instance_id)).save(artifacts / f"{name}_{cam.name}_instance.png")
+            assert f.color_rgb.std() > 10  # textured, not a flat fill
+    overview = CameraModel.simple(1024, 768, 60.0)
+    f = default_renderer.render(overview, look_at([0, -1050, 800], [0, 0, 0]))
+    Image.fromarray(f.color_rgb).save(artifacts / "overview.png")
+    assert (f.instance_id > 0).mean() > 0.3
+    assert len(list(artifacts.glob("*.png"))) == 4 * 2 * 4 + 1
+    assert math.isfinite(float(np.nanmean(f.depth_m)))
