@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from conftest import flat_config
+from sim_worlds import flat_config
 
 from uav_sim_bridge.core.voxels import object_surface_voxels, pack_keys, union_keys, unpack_keys, voxel_centres
 from uav_sim_bridge.core.world import World, generate_world

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
-from conftest import DEFAULT_WORLD_YAML, flat_config, small_config
+from sim_worlds import DEFAULT_WORLD_YAML, flat_config, small_config
 
 from uav_common.config import ConfigError
 from uav_sim_bridge.core.world import World, config_key, generate_world, load_or_generate
