@@ -186,9 +186,9 @@ def age_feature(last_seen_s: npt.NDArray[np.float32], now_s: float, half_life_s:
     arg *= np.float32(k)
     arg += np.float32(k * (float(ref) - now_s))
     np.minimum(arg, np.float32(0.0), out=arg)  # seen "in the future" (clock skew) scores 1
-    out = cv2.exp(arg)
-    cv2.patchNaNs(out, 0.0)
-    return np.asarray(out, dtype=np.float32)
+    np.exp(arg, out=arg)
+    cv2.patchNaNs(arg, 0.0)  # never seen (NaN) scores 0
+    return arg
 
 
 def frontier_boundary(observed: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
@@ -240,10 +240,17 @@ def frontier_feature(observed: npt.NDArray[np.bool_], resolution_m: float, scale
         return np.ones(observed.shape, dtype=np.float32)
     # OpenCV: distance from each non-zero pixel to the nearest zero pixel; the
     # "precise" mask is the exact Euclidean transform (Felzenszwalb-Huttenlocher).
-    src = np.where(boundary, np.uint8(0), np.uint8(1))
-    dist_cells = cv2.distanceTransform(src, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    dist_m = dist_cells * np.float32(resolution_m)
-    return invert_scale(dist_m, scale_m)
+    src = np.logical_not(boundary).view(np.uint8)
+    dist = np.asarray(cv2.distanceTransform(src, cv2.DIST_L2, cv2.DIST_MASK_PRECISE), dtype=np.float32)
+    max_m = float(cv2.minMaxLoc(dist)[1]) * resolution_m
+    scale = max_m if scale_m is None else scale_m
+    if scale <= 0.0:
+        return np.ones(observed.shape, dtype=np.float32)
+    dist *= np.float32(-resolution_m / scale)  # in place: 1 - d * res / scale
+    dist += np.float32(1.0)
+    if scale_m is not None:
+        np.maximum(dist, np.float32(0.0), out=dist)
+    return dist
 
 
 def distance_to_point_m(spec: GridSpec, x_m: float, y_m: float) -> tuple[FloatGrid, float]:

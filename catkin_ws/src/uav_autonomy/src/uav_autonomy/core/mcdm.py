@@ -112,14 +112,20 @@ def weighted_score(features: Mapping[str, FloatGrid], weights: Mapping[str, floa
         msg = f"feature layers differ in shape: {sorted(shapes)}"
         raise InvalidInputError(msg)
     (shape,) = shapes
-    score = np.zeros(shape, dtype=np.float32)
-    tmp = np.empty(shape, dtype=np.float32)
     for name, w in used:
         if name not in features:
             msg = f"feature '{name}' has weight {w} but was not computed; have {sorted(features)}"
             raise InvalidInputError(msg)
-        np.multiply(features[name], np.float32(w), out=tmp)
-        score += tmp
+    score = np.zeros(shape, dtype=np.float32)
+    tmp = np.empty(shape, dtype=np.float32) if len(used) > 1 else score
+    for i, (name, w) in enumerate(used):
+        if i == 0:
+            np.multiply(features[name], np.float32(w), out=score)
+        elif w == 1.0:
+            score += features[name]
+        else:
+            np.multiply(features[name], np.float32(w), out=tmp)
+            score += tmp
     return score
 
 
