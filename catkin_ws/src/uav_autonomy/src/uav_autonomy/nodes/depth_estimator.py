@@ -48,6 +48,7 @@ import numpy as np
 import numpy.typing as npt
 import rospy
 import tf2_ros
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
@@ -56,7 +57,7 @@ from uav_autonomy.core.depth_config import EstimatorConfig
 from uav_autonomy.core.depth_errors import DepthError
 from uav_autonomy.core.depth_estimator import DepthEstimate, MotionStereoEstimator, SkippedFrame
 from uav_autonomy.core.depth_sync import PoseHistory
-from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera
+from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera, check_rgb_image
 from uav_autonomy.ros.autonomy_params import load_section
 from uav_autonomy.ros.depth_conversions import (
     camera_from_info,
@@ -71,12 +72,13 @@ from uav_common.config import ConfigError
 from uav_msgs.msg import DepthEstimatorStatus
 
 _QUEUE_MAX = 64
+_TIME_JUMP_NS = 1_000_000_000
 _ODOM_CAPACITY = 2000
 
 
 def default_depth_config_path() -> Path:
     """``<repo>/config/depth.yaml`` (this file is ``<repo>/catkin_ws/src/uav_autonomy/src/uav_autonomy/nodes/``)."""
-    return Path(__file__).resolve().parents[5] / "config" / "depth.yaml"
+    return Path(__file__).resolve().parents[6] / "config" / "depth.yaml"
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ class DepthEstimatorNode:
         self._core: MotionStereoEstimator | None = None
         self._extra_skips: Counter[str] = Counter()
         self._last_estimate: DepthEstimate | None = None
-        self._last_stamp_ns = -1
+        self._last_posed_ns = -1
         self._odom = PoseHistory(_ODOM_CAPACITY, max_gap_ns=200_000_000, max_extrapolation_ns=50_000_000)
         self._extrinsic: dict[str, CameraPose] = {}
 
@@ -154,12 +156,13 @@ class DepthEstimatorNode:
 
     def on_image(self, msg: Image) -> None:
         with self._lock:
-            if self._core is None:
+            camera = self._camera
+            if camera is None:
                 self._extra_skips["no_camera_info"] += 1
                 rospy.logwarn_throttle(5.0, "depth_estimator: no camera_info yet; image skipped")
                 return
         try:
-            rgb = image_to_rgb(msg)
+            rgb = check_rgb_image(image_to_rgb(msg), camera)
         except DepthError as err:
             with self._lock:
                 self._extra_skips["bad_input"] += 1
@@ -198,11 +201,11 @@ class DepthEstimatorNode:
 
     def _handle(self, core: MotionStereoEstimator, batch: list[_Pending]) -> None:
         newest = batch[-1]
-        stamp_ns = newest.header.stamp.to_nsec()
-        if stamp_ns < self._last_stamp_ns:
-            rospy.logwarn("depth_estimator: time went backwards; clearing tf buffer and history")
+        if newest.header.stamp.to_nsec() < self._last_posed_ns - _TIME_JUMP_NS:
+            # A bag loop or a restarted simulation: old transforms would be wrong now.
+            rospy.logwarn("depth_estimator: time went backwards; clearing the tf buffer")
             self.tf_buffer.clear()
-        self._last_stamp_ns = stamp_ns
+            self._last_posed_ns = -1
         for item in batch[:-1]:
             frame = self._frame(item, wait=False)
             if frame is not None:
@@ -239,17 +242,28 @@ class DepthEstimatorNode:
             with self._lock:
                 self._extra_skips["no_pose"] += 1
             return None
+        self._last_posed_ns = max(self._last_posed_ns, item.header.stamp.to_nsec())
         return ColorFrame(item.header.stamp.to_nsec(), item.rgb, pose)
 
+    def _lookup(self, target: str, source: str, stamp: rospy.Time, wait: bool) -> TransformStamped:
+        """tf lookup that waits in *wall* time: a paused simulation clock must not block the worker."""
+        deadline = time.monotonic() + (self.tf_timeout_s if wait else 0.0)
+        while True:
+            try:
+                return self.tf_buffer.lookup_transform(target, source, stamp)
+            except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException):
+                if time.monotonic() >= deadline or rospy.is_shutdown():
+                    raise
+            time.sleep(0.01)
+
     def _pose(self, header: Header, *, wait: bool) -> CameraPose | None:
-        timeout = rospy.Duration(self.tf_timeout_s if wait else 0.0)
         try:
             if self.pose_source == "tf":
-                tf = self.tf_buffer.lookup_transform(self.map_frame, header.frame_id, header.stamp, timeout)
+                tf = self._lookup(self.map_frame, header.frame_id, header.stamp, wait)
                 return pose_from_transform(tf.transform)
             extrinsic = self._extrinsic.get(header.frame_id)
             if extrinsic is None:
-                tf = self.tf_buffer.lookup_transform(self.base_frame, header.frame_id, rospy.Time(0), timeout)
+                tf = self._lookup(self.base_frame, header.frame_id, rospy.Time(0), wait)
                 extrinsic = pose_from_transform(tf.transform)
                 self._extrinsic[header.frame_id] = extrinsic
         except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as err:
