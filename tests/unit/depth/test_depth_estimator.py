@@ -146,5 +146,4 @@ def test_cloud_matches_the_depth_image(camera: PinholeCamera, flight: list[Rende
     u = np.rint(cloud.xyz_m[:, 0] / cloud.xyz_m[:, 2] * camera.fx_px + camera.cx_px).astype(int)
     v = np.rint(cloud.xyz_m[:, 1] / cloud.xyz_m[:, 2] * camera.fy_px + camera.cy_px).astype(int)
     assert np.allclose(out.depth_m[v, u], cloud.xyz_m[:, 2])
-    rgb = flight[1].frame.rgb[v, u].astype(np.uint32)
-    assert np.array_equal(cloud.rgb_packed.view(np.uint32), (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2])
+    assert np.array_equal(cloud.rgb, flight[1].frame.rgb[v, u])

@@ -37,6 +37,7 @@ from uav_autonomy.ros.depth_conversions import (
     pose_from_transform,
 )
 from uav_autonomy.ros.depth_runlog import DepthRunLog, json_safe
+from uav_sim_bridge.ros.pointcloud2 import xyzrgb_to_pointcloud2
 
 
 def roundtrip(msg: Any) -> Any:
@@ -123,6 +124,11 @@ def test_cloud_message_layout() -> None:
     rec = np.frombuffer(msg.data, "<f4")
     assert rec[:3].tolist() == pytest.approx([2.5, 0.0, 10.0])
     assert rec[3:].view("<u4")[0] == 0x070707
+    # Byte for byte what the sim bridge publishes as its ground-truth cloud for the same points.
+    xyz, colors = np.array([[2.5, 0.0, 10.0]], np.float32), np.array([[7, 7, 7]], np.uint8)
+    truth = xyzrgb_to_pointcloud2(Header(frame_id="camera_nadir_optical"), xyz, colors)
+    for key in ("height", "width", "fields", "is_bigendian", "point_step", "row_step", "data", "is_dense"):
+        assert getattr(msg, key) == getattr(truth, key), key
 
 
 def test_metrics_and_status_messages() -> None:

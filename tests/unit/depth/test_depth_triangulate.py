@@ -9,7 +9,7 @@ from synthetic_scene import nadir_rotation, rotation_about
 from uav_autonomy.core.depth_config import RectificationConfig
 from uav_autonomy.core.depth_errors import DepthInputError
 from uav_autonomy.core.depth_rectify import rectify_pair
-from uav_autonomy.core.depth_triangulate import pack_rgb, points_from_depth, reference_depth, reference_lookup
+from uav_autonomy.core.depth_triangulate import points_from_depth, reference_depth, reference_lookup
 from uav_autonomy.core.depth_types import CameraPose, PinholeCamera
 
 CAM = PinholeCamera(160, 120, 80.0, 80.0, 79.5, 59.5)
@@ -65,18 +65,9 @@ def test_points_from_depth_back_project_and_pack_color() -> None:
     assert pts.xyz_m.dtype == np.float32
     assert pts.xyz_m[0] == pytest.approx([20.0 * -79.5 / 80, 20.0 * -59.5 / 80, 20.0])
     assert pts.xyz_m[1] == pytest.approx([10.0 * -0.5 / 80, 10.0 * -0.5 / 80, 10.0])
-    assert pts.rgb_packed.view(np.uint32)[0] == 0xFF1001
-    rec = pts.as_records()
-    assert rec.shape == (2, 4)
-    assert rec.dtype == np.float32
-    assert rec.tobytes()[12:16] == np.uint32(0xFF1001).tobytes()
+    assert pts.rgb[0].tolist() == [255, 16, 1]
+    assert pts.rgb.dtype == np.uint8
     strided = points_from_depth(np.full(CAM.shape, 5.0, np.float32), rgb, CAM, stride_px=4)
     assert len(strided.xyz_m) == 30 * 40
     with pytest.raises(DepthInputError, match="must both be"):
         points_from_depth(depth[1:], rgb, CAM)
-
-
-def test_pack_rgb() -> None:
-    packed = pack_rgb(np.array([[1, 2, 3], [255, 255, 255]], np.uint8))
-    assert packed.dtype == np.float32
-    assert packed.view(np.uint32).tolist() == [0x010203, 0xFFFFFF]

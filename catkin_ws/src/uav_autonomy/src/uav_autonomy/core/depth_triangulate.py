@@ -23,7 +23,7 @@ from uav_autonomy.core.depth_errors import DepthInputError
 from uav_autonomy.core.depth_rectify import Rectification
 from uav_autonomy.core.depth_types import FloatImage, PinholeCamera, RgbImage
 
-__all__ = ["ColoredPoints", "pack_rgb", "points_from_depth", "reference_depth", "reference_lookup"]
+__all__ = ["ColoredPoints", "points_from_depth", "reference_depth", "reference_lookup"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,28 +87,18 @@ def reference_depth(
     return np.asarray(depth, dtype=np.float32)
 
 
-def pack_rgb(rgb: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
-    """PCL-style packed color: ``(N, 3)`` uint8 -> ``(N,)`` float32 holding ``0x00RRGGBB``."""
-    c = rgb.astype(np.uint32)
-    packed = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
-    return packed.view(np.float32)
-
-
 @dataclass(frozen=True, eq=False)
 class ColoredPoints:
     """An unorganised colored cloud in the camera optical frame.
 
     Attributes:
         xyz_m: ``(N, 3)`` float32 finite points, metres, optical frame.
-        rgb_packed: ``(N,)`` float32 packed colors (see :func:`pack_rgb`).
+        rgb: ``(N, 3)`` uint8 colors; :func:`uav_common.pointcloud.pack_xyzrgb` packs
+            both into the project's cloud layout.
     """
 
     xyz_m: npt.NDArray[np.float32]
-    rgb_packed: npt.NDArray[np.float32]
-
-    def as_records(self) -> npt.NDArray[np.float32]:
-        """``(N, 4)`` float32 rows ``x y z rgb``: the PointCloud2 payload with point_step 16."""
-        return np.ascontiguousarray(np.concatenate([self.xyz_m, self.rgb_packed[:, None]], axis=1))
+    rgb: npt.NDArray[np.uint8]
 
 
 def points_from_depth(depth_m: FloatImage, rgb: RgbImage, camera: PinholeCamera, stride_px: int = 1) -> ColoredPoints:
@@ -128,4 +118,4 @@ def points_from_depth(depth_m: FloatImage, rgb: RgbImage, camera: PinholeCamera,
     xyz = np.stack(
         [(u_px - camera.cx_px) / camera.fx_px * z, (v_px - camera.cy_px) / camera.fy_px * z, z], axis=1
     ).astype(np.float32)
-    return ColoredPoints(xyz_m=xyz, rgb_packed=pack_rgb(rgb[v_px, u_px]))
+    return ColoredPoints(xyz_m=xyz, rgb=np.ascontiguousarray(rgb[v_px, u_px], dtype=np.uint8))

@@ -25,6 +25,7 @@ from uav_autonomy.core.depth_estimator import DepthEstimate, EstimatorStats
 from uav_autonomy.core.depth_metrics import DepthEvaluation, DepthStats
 from uav_autonomy.core.depth_triangulate import ColoredPoints
 from uav_autonomy.core.depth_types import CameraPose, PinholeCamera
+from uav_common.pointcloud import FIELD_OFFSETS, POINT_STEP, pack_xyzrgb
 from uav_common.rotations import matrix_from_quat
 from uav_msgs.msg import DepthEstimatorStatus, DepthMetrics
 from uav_msgs.msg import DepthStats as DepthStatsMsg
@@ -44,13 +45,8 @@ __all__ = [
     "pose_from_transform",
 ]
 
-# The ground-truth cloud layout (docs/architecture.md): x y z rgb float32, point_step 16.
-CLOUD_FIELDS = [
-    PointField(name="x", offset=0, datatype=PointField.FLOAT32, count=1),
-    PointField(name="y", offset=4, datatype=PointField.FLOAT32, count=1),
-    PointField(name="z", offset=8, datatype=PointField.FLOAT32, count=1),
-    PointField(name="rgb", offset=12, datatype=PointField.FLOAT32, count=1),
-]
+# The ground-truth cloud layout (docs/architecture.md, uav_common.pointcloud): x y z rgb float32, point_step 16.
+CLOUD_FIELDS = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in FIELD_OFFSETS.items()]
 
 
 def _pixels(msg: Image, dtype: npt.DTypeLike, channels: int) -> npt.NDArray[Any]:
@@ -154,17 +150,17 @@ def pose_from_odometry(msg: Odometry) -> CameraPose:
 
 def cloud_msg(points: ColoredPoints, header: Header) -> PointCloud2:
     """Unorganised ``x y z rgb`` float32 cloud, point_step 16, finite points only (the ground-truth format)."""
-    records = points.as_records().astype("<f4", copy=False)
-    n = len(records)
+    data = pack_xyzrgb(points.xyz_m, points.rgb)
+    n = len(data) // POINT_STEP
     return PointCloud2(
         header=header,
         height=1,
         width=n,
         fields=CLOUD_FIELDS,
         is_bigendian=False,
-        point_step=16,
-        row_step=16 * n,
-        data=records.tobytes(),
+        point_step=POINT_STEP,
+        row_step=POINT_STEP * n,
+        data=data,
         is_dense=True,
     )
 
