@@ -1,0 +1,271 @@
+"""The parameter table: PX4 names, types, defaults and ranges that drive the autopilot.
+
+Integers travel *bytewise* over MAVLink (the int32 bit pattern reinterpreted as a
+float32), as PX4 does and as MAVSDK and QGC expect from a PX4 autopilot.
+Values are validated on every write; a rejected write leaves the old value.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+__all__ = [
+    "PARAM_SPECS",
+    "ParamSpec",
+    "ParamTable",
+    "ParamType",
+    "SetOutcome",
+    "decode_wire_value",
+    "encode_wire_value",
+]
+
+
+class ParamType(enum.IntEnum):
+    """``MAV_PARAM_TYPE`` values we use."""
+
+    INT32 = 6
+    REAL32 = 9
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    type: ParamType
+    default: float
+    min: float
+    max: float
+    unit: str
+    description: str
+    choices: tuple[int, ...] | None = None
+    read_only: bool = False
+
+    def check(self, value: float) -> str | None:
+        """``None`` if ``value`` is acceptable, else why not."""
+        if not math.isfinite(value):
+            return f"{self.name}: value must be finite, got {value}"
+        if self.type is ParamType.INT32 and value != int(value):
+            return f"{self.name}: integer parameter, got {value}"
+        if not self.min <= value <= self.max:
+            return f"{self.name}: {value:g} out of range [{self.min:g}, {self.max:g}]"
+        if self.choices is not None and int(value) not in self.choices:
+            return f"{self.name}: {value:g} not one of {', '.join(str(c) for c in self.choices)}"
+        return None
+
+
+def _f(name: str, default: float, lo: float, hi: float, unit: str, desc: str) -> ParamSpec:  # noqa: PLR0917
+    return ParamSpec(name, ParamType.REAL32, default, lo, hi, unit, desc)
+
+
+def _i(  # noqa: PLR0917 - table rows read best positionally
+    name: str, default: int, lo: int, hi: int, desc: str, choices: tuple[int, ...] | None = None, *, ro: bool = False
+) -> ParamSpec:
+    return ParamSpec(name, ParamType.INT32, float(default), float(lo), float(hi), "", desc, choices, ro)
+
+
+PARAM_SPECS: tuple[ParamSpec, ...] = (
+    # Commander: arming, failsafes
+    _f("BAT_CRIT_THR", 0.07, 0.0, 0.5, "norm", "Critical battery remaining: failsafe lands (COM_LOW_BAT_ACT 3)"),
+    _f("BAT_LOW_THR", 0.15, 0.0, 0.5, "norm", "Low battery remaining: failsafe returns (COM_LOW_BAT_ACT 3)"),
+    _i("BAT1_N_CELLS", 4, 1, 14, "Cells of the simulated pack (read-only: set battery.cells in config)", ro=True),
+    ParamSpec(
+        "BAT1_CAPACITY",
+        ParamType.REAL32,
+        4000.0,
+        100.0,
+        100000.0,
+        "mAh",
+        "Capacity of the pack (read-only)",
+        None,
+        True,
+    ),
+    _f("COM_DISARM_LAND", 2.0, -1.0, 20.0, "s", "Auto-disarm this long after landing (<= 0: never)"),
+    _f("COM_DISARM_PRFLT", 10.0, -1.0, 60.0, "s", "Auto-disarm if armed on the ground without takeoff (<= 0: never)"),
+    _f("COM_DL_LOSS_T", 10.0, 0.5, 300.0, "s", "Data link loss timeout (no GCS/SDK heartbeat)"),
+    _i("COM_LOW_BAT_ACT", 3, 0, 3, "Battery failsafe: 0 warn only, 3 return at low then land at critical", (0, 3)),
+    _i("COM_OBL_RC_ACT", 5, 0, 5, "Offboard loss action: 0 position, 3 return, 4 land, 5 hold", (0, 3, 4, 5)),
+    _f("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "Offboard setpoint stream loss timeout"),
+    _f("COM_RC_LOSS_T", 0.5, 0.1, 35.0, "s", "Manual control (MANUAL_CONTROL) loss timeout"),
+    _i("GF_ACTION", 3, 0, 5, "Geofence breach: 0 none, 1 warn, 2 hold, 3 return, 5 land", (0, 1, 2, 3, 5)),
+    _f("GF_MAX_HOR_DIST", 1000.0, 0.0, 100000.0, "m", "Geofence radius around home (0: off)"),
+    _f("GF_MAX_VER_DIST", 120.0, 0.0, 10000.0, "m", "Geofence maximum altitude above home (0: off)"),
+    _i("MAV_SYS_ID", 1, 1, 254, "MAVLink system id (read-only: set mavlink.system_id in config)", ro=True),
+    _i("NAV_DLL_ACT", 0, 0, 3, "Data link loss action: 0 off, 1 hold, 2 return, 3 land", (0, 1, 2, 3)),
+    _i("NAV_RCL_ACT", 2, 0, 3, "Manual control loss action: 0 off (hold), 1 hold, 2 return, 3 land", (0, 1, 2, 3)),
+    _i("SYS_AUTOSTART", 4001, 0, 9999999, "Airframe (4001: generic quadcopter; read-only)", ro=True),
+    # Navigator: mission, takeoff, RTL
+    _f("MIS_TAKEOFF_ALT", 2.5, 0.5, 200.0, "m", "Takeoff altitude above home (NaN takeoff altitude)"),
+    _f("NAV_ACC_RAD", 2.0, 0.05, 200.0, "m", "Default horizontal waypoint acceptance radius"),
+    _f("NAV_MC_ALT_RAD", 0.8, 0.05, 200.0, "m", "Vertical waypoint acceptance radius"),
+    _f("RTL_DESCEND_ALT", 30.0, 2.0, 500.0, "m", "RTL: descend to this altitude above home before landing"),
+    _f("RTL_LAND_DELAY", 0.0, -1.0, 300.0, "s", "RTL: hover this long before landing (-1: hover forever)"),
+    _f("RTL_RETURN_ALT", 60.0, 0.0, 1000.0, "m", "RTL: climb to at least this altitude above home"),
+    # Multicopter position control
+    _f("MPC_ACC_DOWN_MAX", 3.0, 1.0, 15.0, "m/s^2", "Maximum downward acceleration"),
+    _f("MPC_ACC_HOR", 3.0, 1.0, 15.0, "m/s^2", "Maximum horizontal acceleration in auto modes"),
+    _f("MPC_ACC_UP_MAX", 4.0, 1.0, 15.0, "m/s^2", "Maximum upward acceleration"),
+    _f("MPC_LAND_SPEED", 0.7, 0.2, 3.0, "m/s", "Landing descent speed"),
+    _f("MPC_MAN_TILT_MAX", 35.0, 1.0, 85.0, "deg", "Maximum tilt in MANUAL"),
+    _f("MPC_MAN_Y_MAX", 150.0, 0.0, 400.0, "deg/s", "Maximum yaw rate from the sticks"),
+    _f("MPC_THR_HOVER", 0.225, 0.05, 0.9, "norm", "Collective thrust (fraction of maximum) that hovers"),
+    _f("MPC_TILTMAX_AIR", 45.0, 10.0, 89.0, "deg", "Maximum tilt in position-controlled flight"),
+    _f("MPC_TKO_SPEED", 1.5, 0.5, 5.0, "m/s", "Takeoff climb speed"),
+    _f("MPC_XY_CRUISE", 5.0, 0.5, 20.0, "m/s", "Horizontal speed in auto modes (mission, RTL)"),
+    _f("MPC_XY_P", 0.95, 0.0, 3.0, "1/s", "Horizontal position gain"),
+    _f("MPC_XY_VEL_I_ACC", 0.4, 0.0, 60.0, "1/s^2", "Horizontal velocity integral gain"),
+    _f("MPC_XY_VEL_MAX", 12.0, 0.5, 20.0, "m/s", "Maximum horizontal speed"),
+    _f("MPC_XY_VEL_P_ACC", 1.8, 0.5, 15.0, "1/s", "Horizontal velocity proportional gain"),
+    _f("MPC_Z_P", 1.0, 0.0, 3.0, "1/s", "Vertical position gain"),
+    _f("MPC_Z_VEL_I_ACC", 2.0, 0.0, 60.0, "1/s^2", "Vertical velocity integral gain"),
+    _f("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "Maximum descent speed"),
+    _f("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "Maximum climb speed"),
+    _f("MPC_Z_VEL_P_ACC", 4.0, 0.5, 15.0, "1/s", "Vertical velocity proportional gain"),
+    # Multicopter attitude and rate control
+    _f("MC_PITCH_P", 6.5, 0.0, 12.0, "1/s", "Pitch angle gain"),
+    _f("MC_PITCHRATE_D", 0.003, 0.0, 0.1, "", "Pitch rate derivative gain"),
+    _f("MC_PITCHRATE_I", 0.2, 0.0, 2.0, "", "Pitch rate integral gain"),
+    _f("MC_PITCHRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum pitch rate"),
+    _f("MC_PITCHRATE_P", 0.15, 0.01, 0.6, "", "Pitch rate proportional gain"),
+    _f("MC_ROLL_P", 6.5, 0.0, 12.0, "1/s", "Roll angle gain"),
+    _f("MC_ROLLRATE_D", 0.003, 0.0, 0.1, "", "Roll rate derivative gain"),
+    _f("MC_ROLLRATE_I", 0.2, 0.0, 2.0, "", "Roll rate integral gain"),
+    _f("MC_ROLLRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum roll rate"),
+    _f("MC_ROLLRATE_P", 0.15, 0.01, 0.6, "", "Roll rate proportional gain"),
+    _f("MC_YAW_P", 2.8, 0.0, 5.0, "1/s", "Yaw angle gain"),
+    _f("MC_YAWRATE_I", 0.1, 0.0, 2.0, "", "Yaw rate integral gain"),
+    _f("MC_YAWRATE_MAX", 200.0, 0.0, 1800.0, "deg/s", "Maximum yaw rate"),
+    _f("MC_YAWRATE_P", 0.2, 0.0, 0.6, "", "Yaw rate proportional gain"),
+)
+
+
+def encode_wire_value(value: float, ptype: ParamType) -> float:
+    """Value as it travels in ``PARAM_VALUE.param_value`` (bytewise for integers)."""
+    if ptype is ParamType.INT32:
+        return float(struct.unpack("<f", struct.pack("<i", int(value)))[0])
+    return float(value)
+
+
+def decode_wire_value(wire: float, wire_type: int, spec: ParamSpec) -> float | None:  # noqa: PLR0911
+    """Value a client meant by ``PARAM_SET(param_value=wire, param_type=wire_type)``.
+
+    Integer types are decoded bytewise (PX4 convention). A REAL32 sent for an
+    integer parameter is accepted when it is integral (some tools do that).
+    Returns ``None`` when the bits cannot be a value of this parameter.
+    """
+    if not isinstance(wire, float):
+        return None
+    if wire_type in (1, 2, 3, 4, 5, 6):  # UINT8..INT32: the low bytes carry the integer
+        raw = struct.unpack("<i", struct.pack("<f", wire))[0]
+        if wire_type == 1:
+            return float(raw & 0xFF)
+        if wire_type == 2:
+            return float(struct.unpack("<b", struct.pack("<B", raw & 0xFF))[0])
+        if wire_type == 3:
+            return float(raw & 0xFFFF)
+        if wire_type == 4:
+            return float(struct.unpack("<h", struct.pack("<H", raw & 0xFFFF))[0])
+        if wire_type == 5:
+            return float(raw & 0xFFFFFFFF)
+        return float(raw)
+    if wire_type == ParamType.REAL32:
+        return wire
+    return None
+
+
+@dataclass(frozen=True)
+class SetOutcome:
+    accepted: bool
+    value: float
+    reason: str = ""
+
+
+class ParamTable:
+    """Values of every parameter, in a stable (sorted) index order."""
+
+    def __init__(self, specs: tuple[ParamSpec, ...] = PARAM_SPECS, defaults: Mapping[str, float] | None = None) -> None:
+        self._specs = {s.name: s for s in sorted(specs, key=lambda s: s.name)}
+        self._names = tuple(self._specs)
+        self._index = {name: i for i, name in enumerate(self._names)}
+        self._defaults = {name: spec.default for name, spec in self._specs.items()}
+        for name, value in (defaults or {}).items():
+            spec = self._specs.get(name)
+            if spec is None:
+                msg = f"unknown parameter {name!r}"
+                raise ValueError(msg)
+            problem = spec.check(float(value))
+            if problem:
+                raise ValueError(problem)
+            self._defaults[name] = float(value)
+        self._values = dict(self._defaults)
+        self.version = 0
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self._names
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._specs
+
+    def index_of(self, name: str) -> int:
+        return self._index[name]
+
+    def spec(self, name: str) -> ParamSpec:
+        return self._specs[name]
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def default(self, name: str) -> float:
+        return self._defaults[name]
+
+    def set(self, name: str, value: float, *, force: bool = False) -> SetOutcome:
+        """Validate and store; ``force`` also writes read-only parameters (start-up only)."""
+        spec = self._specs.get(name)
+        if spec is None:
+            return SetOutcome(False, math.nan, f"unknown parameter {name!r}")
+        current = self._values[name]
+        if spec.read_only and not force:
+            if value == current:
+                return SetOutcome(True, current)
+            return SetOutcome(False, current, f"{name} is read-only")
+        problem = spec.check(value)
+        if problem is None:
+            problem = self._cross_check(name, value)
+        if problem is not None:
+            return SetOutcome(False, current, problem)
+        if value != current:
+            self._values[name] = float(value)
+            self.version += 1
+        return SetOutcome(True, float(value))
+
+    def _cross_check(self, name: str, value: float) -> str | None:
+        low = value if name == "BAT_LOW_THR" else self._values["BAT_LOW_THR"]
+        crit = value if name == "BAT_CRIT_THR" else self._values["BAT_CRIT_THR"]
+        if name in ("BAT_LOW_THR", "BAT_CRIT_THR") and crit >= low:
+            return f"{name}: need BAT_CRIT_THR ({crit:g}) < BAT_LOW_THR ({low:g})"
+        return None
+
+    def changed_from_default(self) -> dict[str, float]:
+        """Values differing from the defaults: what the parameter file persists."""
+        return {n: v for n, v in self._values.items() if v != self._defaults[n] and not self._specs[n].read_only}
+
+    def apply_persisted(self, values: Mapping[str, object]) -> list[str]:
+        """Load persisted values; returns one message per entry that was skipped."""
+        problems = []
+        for name, raw in values.items():
+            if name not in self._specs:
+                problems.append(f"unknown parameter {name!r} ignored")
+                continue
+            if not isinstance(raw, int | float) or isinstance(raw, bool):
+                problems.append(f"{name}: not a number ({raw!r}), ignored")
+                continue
+            outcome = self.set(name, float(raw))
+            if not outcome.accepted:
+                problems.append(f"{outcome.reason}; kept {outcome.value:g}")
+        return problems

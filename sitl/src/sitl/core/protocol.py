@@ -1,0 +1,178 @@
+"""The MAVLink numbers the autopilot core reasons about, as enums.
+
+The core stays free of pymavlink (it never sees a message object); these values
+are the MAVLink common dialect's, and ``tests/unit/sitl/test_protocol.py``
+checks every one of them against pymavlink's generated constants.
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = [
+    "LandedState",
+    "MavCmd",
+    "MavFrame",
+    "MavMissionResult",
+    "MavResult",
+    "MavSeverity",
+    "MavState",
+    "MissionState",
+    "MsgId",
+    "PositionTargetMask",
+]
+
+
+class MavCmd(enum.IntEnum):
+    NAV_WAYPOINT = 16
+    NAV_LOITER_UNLIM = 17
+    NAV_LOITER_TIME = 19
+    NAV_RETURN_TO_LAUNCH = 20
+    NAV_LAND = 21
+    NAV_TAKEOFF = 22
+    DO_SET_MODE = 176
+    DO_CHANGE_SPEED = 178
+    DO_REPOSITION = 192
+    DO_SET_MISSION_CURRENT = 224
+    MISSION_START = 300
+    COMPONENT_ARM_DISARM = 400
+    GET_HOME_POSITION = 410
+    GET_MESSAGE_INTERVAL = 510
+    SET_MESSAGE_INTERVAL = 511
+    REQUEST_MESSAGE = 512
+    REQUEST_AUTOPILOT_CAPABILITIES = 520
+    USER_1 = 31010
+
+
+SIM_STEP = MavCmd.USER_1
+"""The simulation link's lockstep grant (docs/architecture.md)."""
+
+FORCE_ARM_MAGIC = 21196.0
+
+
+class MavResult(enum.IntEnum):
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+
+
+class MavFrame(enum.IntEnum):
+    GLOBAL = 0
+    LOCAL_NED = 1
+    MISSION = 2
+    GLOBAL_RELATIVE_ALT = 3
+    GLOBAL_INT = 5
+    GLOBAL_RELATIVE_ALT_INT = 6
+    LOCAL_OFFSET_NED = 7
+    BODY_NED = 8
+    BODY_OFFSET_NED = 9
+    GLOBAL_TERRAIN_ALT = 10
+    GLOBAL_TERRAIN_ALT_INT = 11
+
+
+class MavMissionResult(enum.IntEnum):
+    ACCEPTED = 0
+    ERROR = 1
+    UNSUPPORTED_FRAME = 2
+    UNSUPPORTED = 3
+    NO_SPACE = 4
+    INVALID = 5
+    INVALID_PARAM1 = 6
+    INVALID_PARAM2 = 7
+    INVALID_PARAM3 = 8
+    INVALID_PARAM4 = 9
+    INVALID_PARAM5_X = 10
+    INVALID_PARAM6_Y = 11
+    INVALID_PARAM7 = 12
+    INVALID_SEQUENCE = 13
+    DENIED = 14
+    OPERATION_CANCELLED = 15
+
+
+class MavSeverity(enum.IntEnum):
+    EMERGENCY = 0
+    ALERT = 1
+    CRITICAL = 2
+    ERROR = 3
+    WARNING = 4
+    NOTICE = 5
+    INFO = 6
+    DEBUG = 7
+
+
+class MavState(enum.IntEnum):
+    UNINIT = 0
+    BOOT = 1
+    CALIBRATING = 2
+    STANDBY = 3
+    ACTIVE = 4
+    CRITICAL = 5
+    EMERGENCY = 6
+    POWEROFF = 7
+    FLIGHT_TERMINATION = 8
+
+
+class LandedState(enum.IntEnum):
+    UNDEFINED = 0
+    ON_GROUND = 1
+    IN_AIR = 2
+    TAKEOFF = 3
+    LANDING = 4
+
+
+class MissionState(enum.IntEnum):
+    UNKNOWN = 0
+    NO_MISSION = 1
+    NOT_STARTED = 2
+    ACTIVE = 3
+    PAUSED = 4
+    COMPLETE = 5
+
+
+class PositionTargetMask(enum.IntFlag):
+    """``type_mask`` bits of SET_POSITION_TARGET_*: a set bit means *ignore*."""
+
+    X_IGNORE = 1
+    Y_IGNORE = 2
+    Z_IGNORE = 4
+    VX_IGNORE = 8
+    VY_IGNORE = 16
+    VZ_IGNORE = 32
+    AX_IGNORE = 64
+    AY_IGNORE = 128
+    AZ_IGNORE = 256
+    FORCE_SET = 512
+    YAW_IGNORE = 1024
+    YAW_RATE_IGNORE = 2048
+
+
+class MsgId(enum.IntEnum):
+    """Message ids the autopilot produces or that commands refer to."""
+
+    HEARTBEAT = 0
+    SYS_STATUS = 1
+    SYSTEM_TIME = 2
+    PING = 4
+    PARAM_VALUE = 22
+    GPS_RAW_INT = 24
+    ATTITUDE = 30
+    ATTITUDE_QUATERNION = 31
+    LOCAL_POSITION_NED = 32
+    GLOBAL_POSITION_INT = 33
+    MISSION_CURRENT = 42
+    GPS_GLOBAL_ORIGIN = 49
+    VFR_HUD = 74
+    POSITION_TARGET_LOCAL_NED = 85
+    HIGHRES_IMU = 105
+    TIMESYNC = 111
+    ALTITUDE = 141
+    BATTERY_STATUS = 147
+    AUTOPILOT_VERSION = 148
+    HOME_POSITION = 242
+    MESSAGE_INTERVAL = 244
+    EXTENDED_SYS_STATE = 245
+    STATUSTEXT = 253
+    ODOMETRY = 331

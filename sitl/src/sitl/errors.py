@@ -1,0 +1,31 @@
+"""The one exception hierarchy of :mod:`sitl`.
+
+Library code raises these and never prints or exits; only :func:`sitl.cli.main`
+turns them into a message and an exit status.
+"""
+
+from __future__ import annotations
+
+
+class SitlError(Exception):
+    """Root of every error raised by :mod:`sitl`."""
+
+
+class SitlConfigError(SitlError):
+    """The configuration (file, command line) is invalid.
+
+    The message names the source, the key and what was expected, so it can be
+    shown to a user as it is.
+    """
+
+
+class ParamFileError(SitlError):
+    """The persisted parameter file cannot be read or written."""
+
+
+class LinkError(SitlError):
+    """A MAVLink link cannot be opened (port busy, bad address, bad signing key)."""
+
+
+class FdmError(SitlError):
+    """JSBSim could not load the aircraft or produced a non-finite state."""

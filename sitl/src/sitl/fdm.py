@@ -1,0 +1,272 @@
+"""JSBSim in-process: the F450 quadrotor stepped at a fixed ``dt``.
+
+This is the only module that imports :mod:`jsbsim` and the only place where
+JSBSim's imperial units become SI: everything leaving it is metres, seconds,
+radians, newtons, volts and amperes, in NED / FRD frames.
+
+Motor commands are written every step into the F450's external ESC inputs
+(``fcs/cmd??_ext_nd``) with the model's own flight-control law disengaged, so
+the autopilot's mixer alone drives the four motors.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import jsbsim
+
+from sitl.core.state import VehicleState
+from sitl.errors import FdmError
+
+__all__ = ["FT_TO_M", "JsbsimQuad", "MotorReading"]
+
+FT_TO_M = 0.3048
+LBF_TO_N = 4.4482216152605
+FTLBF_TO_NM = 1.3558179483314
+
+# F450 engine order = PX4 quad-X motor order: front right, aft left, front left, aft right.
+_ESC_INPUTS = ("fcs/cmdFR_ext_nd", "fcs/cmdAL_ext_nd", "fcs/cmdFL_ext_nd", "fcs/cmdAR_ext_nd")
+
+
+@dataclass(frozen=True)
+class MotorReading:
+    """One motor after the last step."""
+
+    throttle: float
+    rpm: float
+    thrust_n: float
+    current_a: float
+    applied_voltage_v: float
+
+    @property
+    def electrical_power_w(self) -> float:
+        return self.applied_voltage_v * self.current_a
+
+
+@contextlib.contextmanager
+def _quiet_stdio() -> Iterator[None]:
+    """Silence JSBSim's banner and loader chatter on the C-level stdout/stderr."""
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = os.dup(1), os.dup(2)
+    except (OSError, ValueError):
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+class JsbsimQuad:
+    """The F450 in JSBSim, with SI accessors.
+
+    Args:
+        aircraft: JSBSim model name (``F450``).
+        dt_s: physics step.
+        lat_deg, lon_deg: start position (home).
+        ground_alt_amsl_m: terrain elevation under the start position.
+        yaw_rad: initial heading.
+        motor_max_voltage_v: the JSBSim motor's ``maxvolts`` (its throttle is
+            ``applied volts / maxvolts``).
+        root: JSBSim data root (aircraft/, engine/, systems/); default: the
+            one shipped in the ``jsbsim`` package.
+    """
+
+    def __init__(
+        self,
+        *,
+        aircraft: str,
+        dt_s: float,
+        lat_deg: float,
+        lon_deg: float,
+        ground_alt_amsl_m: float,
+        yaw_rad: float,
+        motor_max_voltage_v: float,
+        root: Path | None = None,
+    ) -> None:
+        data_root = str(root) if root is not None else str(jsbsim.get_default_root_dir())
+        with _quiet_stdio():
+            fdm = jsbsim.FGFDMExec(data_root)
+            fdm.set_debug_level(0)
+            loaded = fdm.load_model(aircraft)
+        if not loaded:
+            msg = f"JSBSim could not load aircraft {aircraft!r} from {data_root}"
+            raise FdmError(msg)
+        self._fdm = fdm
+        self.dt_s = dt_s
+        self.motor_max_voltage_v = motor_max_voltage_v
+        fdm.set_dt(dt_s)
+        fdm["simulation/randomseed"] = 0
+        # CG height above the contact points when resting (gear z is in structural inches, z up).
+        gear_z_in = [fdm[f"gear/unit[{i}]/z-position"] for i in range(int(fdm["gear/num-units"]))]
+        self.ground_clearance_m = -min(gear_z_in) * 0.0254
+        self._terrain_amsl_m = ground_alt_amsl_m
+        fdm["ic/lat-geod-deg"] = lat_deg
+        fdm["ic/long-gc-deg"] = lon_deg
+        fdm["ic/terrain-elevation-ft"] = ground_alt_amsl_m / FT_TO_M
+        fdm["ic/h-agl-ft"] = self.ground_clearance_m / FT_TO_M
+        fdm["ic/psi-true-deg"] = math.degrees(yaw_rad)
+        for name in ("ic/u-fps", "ic/v-fps", "ic/w-fps", "ic/p-rad_sec", "ic/q-rad_sec", "ic/r-rad_sec"):
+            fdm[name] = 0.0
+        with _quiet_stdio():
+            if not fdm.run_ic():
+                msg = "JSBSim run_ic() failed"
+                raise FdmError(msg)
+        fdm["fcs/ScasEngage"] = 0.0
+        fdm["fcs/throttle-cmd-norm"] = 0.0
+        for i in range(4):
+            fdm[f"propulsion/engine[{i}]/set-running"] = 1
+        pm = fdm.get_property_manager()
+        self._esc = []
+        for name in _ESC_INPUTS:
+            node = pm.get_node(name, False)
+            if node is None:
+                msg = f"aircraft {aircraft!r} has no property {name} (expected the F450's external ESC inputs)"
+                raise FdmError(msg)
+            self._esc.append(node)
+        self._sim_time_s = 0.0
+        self._last_throttle = (0.0, 0.0, 0.0, 0.0)
+        self._last_voltage_v = motor_max_voltage_v
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, duty: tuple[float, float, float, float], battery_voltage_v: float) -> None:
+        """Apply ESC duty cycles (0..1) powered by ``battery_voltage_v`` and advance one ``dt``."""
+        ratio = battery_voltage_v / self.motor_max_voltage_v
+        throttle = (
+            min(1.0, max(0.0, duty[0] * ratio)),
+            min(1.0, max(0.0, duty[1] * ratio)),
+            min(1.0, max(0.0, duty[2] * ratio)),
+            min(1.0, max(0.0, duty[3] * ratio)),
+        )
+        esc = self._esc
+        esc[0].set_double_value(throttle[0])
+        esc[1].set_double_value(throttle[1])
+        esc[2].set_double_value(throttle[2])
+        esc[3].set_double_value(throttle[3])
+        self._last_throttle = throttle
+        self._last_voltage_v = battery_voltage_v
+        if not self._fdm.run():
+            msg = "JSBSim run() returned false"
+            raise FdmError(msg)
+        self._sim_time_s += self.dt_s
+
+    def set_terrain_amsl(self, elevation_m: float) -> None:
+        """Move JSBSim's ground to ``elevation_m`` AMSL (from the bridge's TERRAIN_REPORT)."""
+        self._terrain_amsl_m = elevation_m
+        self._fdm["position/terrain-elevation-asl-ft"] = elevation_m / FT_TO_M
+
+    @property
+    def terrain_amsl_m(self) -> float:
+        return self._terrain_amsl_m
+
+    # ------------------------------------------------------------------ reading
+    def state(self, t_s: float) -> VehicleState:
+        """Ground truth after the last step (SI, NED/FRD). Position is the CG's."""
+        f = self._fdm
+        phi, theta, psi = f["attitude/phi-rad"], f["attitude/theta-rad"], f["attitude/psi-rad"]
+        cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
+        cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
+        cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+        q = (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        )
+        if q[0] < 0.0:
+            q = (-q[0], -q[1], -q[2], -q[3])
+        g = f["accelerations/gravity-ft_sec2"]
+        state = VehicleState(
+            t_s=t_s,
+            lat_deg=f["position/lat-geod-deg"],
+            lon_deg=f["position/long-gc-deg"],
+            alt_amsl_m=f["position/h-sl-ft"] * FT_TO_M,
+            vel_ned_mps=(
+                f["velocities/v-north-fps"] * FT_TO_M,
+                f["velocities/v-east-fps"] * FT_TO_M,
+                f["velocities/v-down-fps"] * FT_TO_M,
+            ),
+            q_wxyz=q,
+            euler_rad=(phi, theta, _wrap_pi(psi)),
+            rates_frd_radps=(f["velocities/p-rad_sec"], f["velocities/q-rad_sec"], f["velocities/r-rad_sec"]),
+            specific_force_frd_mps2=(
+                f["accelerations/a-pilot-x-ft_sec2"] * FT_TO_M,
+                f["accelerations/a-pilot-y-ft_sec2"] * FT_TO_M,
+                f["accelerations/a-pilot-z-ft_sec2"] * FT_TO_M,
+            ),
+            height_above_ground_m=f["position/h-agl-ft"] * FT_TO_M - self.ground_clearance_m,
+            gravity_mps2=g * FT_TO_M,
+        )
+        if not all(math.isfinite(v) for v in (state.alt_amsl_m, *state.vel_ned_mps, *state.q_wxyz)):
+            msg = f"JSBSim state became non-finite at t={t_s:.3f} s"
+            raise FdmError(msg)
+        return state
+
+    def attitude_and_rates(self) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+        """The cheap per-step subset: quaternion (w, x, y, z) body->NED and FRD body rates."""
+        f = self._fdm
+        phi, theta, psi = f["attitude/phi-rad"], f["attitude/theta-rad"], f["attitude/psi-rad"]
+        cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
+        cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
+        cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+        q = (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        )
+        return q, (f["velocities/p-rad_sec"], f["velocities/q-rad_sec"], f["velocities/r-rad_sec"])
+
+    def motors(self) -> tuple[MotorReading, ...]:
+        """Per-motor throttle, rpm, thrust, current and applied voltage after the last step."""
+        f = self._fdm
+        out = []
+        for i, throttle in enumerate(self._last_throttle):
+            out.append(
+                MotorReading(
+                    throttle=throttle,
+                    rpm=f[f"propulsion/engine[{i}]/engine-rpm"],
+                    thrust_n=f[f"propulsion/engine[{i}]/thrust-lbs"] * LBF_TO_N,
+                    current_a=max(0.0, f[f"propulsion/engine[{i}]/current-amperes"]),
+                    applied_voltage_v=throttle * self.motor_max_voltage_v,
+                )
+            )
+        return tuple(out)
+
+    def motor_electrical_power_w(self) -> float:
+        """Sum over the motors of applied voltage times motor current (W)."""
+        f = self._fdm
+        vmax = self.motor_max_voltage_v
+        thr = self._last_throttle
+        return vmax * (
+            thr[0] * max(0.0, f["propulsion/engine[0]/current-amperes"])
+            + thr[1] * max(0.0, f["propulsion/engine[1]/current-amperes"])
+            + thr[2] * max(0.0, f["propulsion/engine[2]/current-amperes"])
+            + thr[3] * max(0.0, f["propulsion/engine[3]/current-amperes"])
+        )
+
+    @property
+    def mass_kg(self) -> float:
+        return float(self._fdm["inertia/mass-slugs"]) * 14.593903
+
+    @property
+    def on_ground(self) -> bool:
+        return bool(self._fdm["gear/wow"])
+
+
+def _wrap_pi(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi

@@ -1,0 +1,406 @@
+"""Vehicle state -> pymavlink message objects (the telemetry the autopilot reports).
+
+Every number here is what PX4 puts in the same field: simulation-time stamps
+(``time_boot_ms``, ``time_usec``), 1e-7 degree positions, millimetre altitudes,
+centi-units for speeds and currents, the estimate (not the truth) for
+everything a client sees on the vehicle links.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from sitl.core.control import Setpoint
+from sitl.core.modes import FlightMode
+from sitl.core.params import ParamTable, encode_wire_value
+from sitl.core.protocol import MissionState, MsgId
+from sitl.shell.links import mavlink
+from sitl.vehicle import Vehicle
+
+__all__ = ["AUTOPILOT_CAPABILITIES", "FLIGHT_SW_VERSION", "Encoder", "statustext_chunks"]
+
+AUTOPILOT_CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+)
+# PX4 version encoding: major << 24 | minor << 16 | patch << 8 | type (255 = release). We claim 1.14.0.
+FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255
+
+# Sensors we simulate; PREARM_CHECK in health means "armable" (MAVSDK health.is_armable).
+_S = mavlink
+SENSORS = (
+    _S.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | _S.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | _S.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | _S.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | _S.MAV_SYS_STATUS_SENSOR_GPS
+    | _S.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | _S.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | _S.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | _S.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | _S.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | _S.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | _S.MAV_SYS_STATUS_AHRS
+    | _S.MAV_SYS_STATUS_SENSOR_BATTERY
+    | _S.MAV_SYS_STATUS_PREARM_CHECK
+)
+# Earth magnetic field (gauss, NED) for HIGHRES_IMU's synthetic magnetometer (central Europe).
+_MAG_NED_GAUSS = (0.216, 0.0, 0.423)
+INT16_MAX = 32767
+UINT16_MAX = 65535
+
+
+def statustext_chunks(text: str, chunk_id: int) -> list[tuple[bytes, int, int]]:
+    """``(text, id, chunk_seq)`` pieces of at most 50 bytes (MAVLink 2 STATUSTEXT chunking).
+
+    A text that fits is sent with id 0; a longer one in 50-byte chunks sharing
+    ``chunk_id`` (1..65535), the last one shorter than 50 bytes (NUL-terminated).
+    """
+    raw = text.encode("utf-8", "replace")
+    if len(raw) <= 50:
+        return [(raw, 0, 0)]
+    pieces = [raw[i : i + 50] for i in range(0, len(raw), 50)]
+    if len(pieces[-1]) == 50:
+        pieces.append(b"")
+    return [(piece, chunk_id, i) for i, piece in enumerate(pieces)]
+
+
+def _isa_pressure_hpa(alt_amsl_m: float) -> float:
+    return float(1013.25 * max(0.0, 1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588)
+
+
+def _cdeg(rad: float) -> int:
+    return round(math.degrees(rad) % 360.0 * 100.0) % 36000
+
+
+def _clamp_int(value: float, low: int, high: int) -> int:
+    if not math.isfinite(value):
+        return low
+    return int(max(low, min(high, round(value))))
+
+
+class Encoder:
+    """Builds messages from one :class:`Vehicle`; ``build(msg_id)`` or the named helpers."""
+
+    def __init__(self, vehicle: Vehicle, *, unix_epoch_s: float, system_id: int) -> None:
+        self.v = vehicle
+        self.unix_epoch_s = unix_epoch_s
+        self.system_id = system_id
+        self.load_permille = 0
+        self.errors_comm = 0
+        self.factory = mavlink.MAVLink(None)
+        self._chunk_id = 0
+
+    @property
+    def time_boot_ms(self) -> int:
+        return int(self.v.t_s * 1000.0) & 0xFFFFFFFF
+
+    @property
+    def time_usec(self) -> int:
+        return int(self.v.t_s * 1e6)
+
+    def build(self, msg_id: int) -> Any | None:  # noqa: PLR0911, PLR0912
+        """The message for a stream or a REQUEST_MESSAGE; ``None`` if it cannot be produced."""
+        if msg_id == MsgId.HEARTBEAT:
+            return self.heartbeat()
+        if msg_id == MsgId.SYS_STATUS:
+            return self.sys_status()
+        if msg_id == MsgId.BATTERY_STATUS:
+            return self.battery_status()
+        if msg_id == MsgId.EXTENDED_SYS_STATE:
+            ap = self.v.autopilot
+            return self.factory.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
+        if msg_id == MsgId.ATTITUDE:
+            s = self.v.est.full
+            r, p, y = s.euler_rad
+            return self.factory.attitude_encode(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
+        if msg_id == MsgId.ATTITUDE_QUATERNION:
+            s = self.v.est.full
+            return self.factory.attitude_quaternion_encode(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
+        if msg_id == MsgId.LOCAL_POSITION_NED:
+            e = self.v.est
+            return self.factory.local_position_ned_encode(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
+        if msg_id == MsgId.GLOBAL_POSITION_INT:
+            return self.global_position_int()
+        if msg_id == MsgId.GPS_RAW_INT:
+            return self.gps_raw_int()
+        if msg_id == MsgId.HOME_POSITION:
+            return self.home_position()
+        if msg_id == MsgId.ALTITUDE:
+            e = self.v.est
+            amsl = e.full.alt_amsl_m
+            rel = -e.pos_ned_m[2]
+            agl = e.full.height_above_ground_m
+            return self.factory.altitude_encode(self.time_usec, amsl, amsl, rel, rel, agl, agl)
+        if msg_id == MsgId.VFR_HUD:
+            e = self.v.est
+            vn, ve, vd = e.vel_ned_mps
+            speed = math.hypot(vn, ve)
+            heading = int(math.degrees(e.yaw_rad) % 360.0) % 360
+            throttle = _clamp_int(100.0 * self.v.autopilot.thrust, 0, 100)
+            return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
+        if msg_id == MsgId.HIGHRES_IMU:
+            return self.highres_imu()
+        if msg_id == MsgId.SYSTEM_TIME:
+            unix_us = int((self.unix_epoch_s + self.v.t_s) * 1e6)
+            return self.factory.system_time_encode(unix_us, self.time_boot_ms)
+        if msg_id == MsgId.ODOMETRY:
+            return self.odometry(truth=False)
+        if msg_id == MsgId.POSITION_TARGET_LOCAL_NED:
+            return self.position_target()
+        if msg_id == MsgId.MISSION_CURRENT:
+            return self.mission_current()
+        if msg_id == MsgId.AUTOPILOT_VERSION:
+            return self.autopilot_version()
+        if msg_id == MsgId.GPS_GLOBAL_ORIGIN:
+            h = self.v.home
+            return self.factory.gps_global_origin_encode(
+                round(h.lat_deg * 1e7),
+                round(h.lon_deg * 1e7),
+                round(h.alt_amsl_m * 1000),
+                self.time_usec,
+            )
+        return None
+
+    # ------------------------------------------------------------------ messages
+    def heartbeat(self) -> Any:
+        ap = self.v.autopilot
+        return self.factory.heartbeat_encode(
+            mavlink.MAV_TYPE_QUADROTOR,
+            mavlink.MAV_AUTOPILOT_PX4,
+            ap.mode.base_mode(armed=ap.armed),
+            ap.mode.custom_mode,
+            int(ap.system_status),
+        )
+
+    def sys_status(self) -> Any:
+        ap = self.v.autopilot
+        b = self.v.battery_reading
+        health = SENSORS
+        if not self.v.est.gps_ok:
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        if ap.armed or ap.prearm_failure() is not None:
+            health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if ap.crashed:
+            health &= ~(mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
+        return self.factory.sys_status_encode(
+            SENSORS,
+            SENSORS,
+            health,
+            _clamp_int(self.load_permille, 0, 1000),
+            _clamp_int(b.voltage_v * 1000.0, 0, UINT16_MAX - 1),
+            _clamp_int(b.current_a * 100.0, -1, INT16_MAX),
+            _clamp_int(100.0 * b.remaining, 0, 100),
+            0,
+            _clamp_int(self.errors_comm, 0, UINT16_MAX),
+            0,
+            0,
+            0,
+            0,
+        )
+
+    def battery_status(self) -> Any:
+        b = self.v.battery_reading
+        cells = self.v.cfg.battery.cells
+        cell_mv = _clamp_int(b.cell_voltage_v * 1000.0, 0, UINT16_MAX - 1)
+        voltages = [cell_mv if i < cells else UINT16_MAX for i in range(10)]
+        ext = [cell_mv if 10 + i < cells else 0 for i in range(4)]
+        params = self.v.params
+        if b.remaining <= params["BAT_CRIT_THR"]:
+            state = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
+        elif b.remaining <= params["BAT_LOW_THR"]:
+            state = mavlink.MAV_BATTERY_CHARGE_STATE_LOW
+        else:
+            state = mavlink.MAV_BATTERY_CHARGE_STATE_OK
+        remaining_mah = b.remaining * self.v.cfg.battery.capacity_mah
+        time_remaining = int(remaining_mah * 3.6 / b.current_a) if b.current_a > 0.5 else 0
+        return self.factory.battery_status_encode(
+            0,
+            mavlink.MAV_BATTERY_FUNCTION_ALL,
+            mavlink.MAV_BATTERY_TYPE_LIPO,
+            INT16_MAX,
+            voltages,
+            _clamp_int(b.current_a * 100.0, -1, INT16_MAX),
+            _clamp_int(b.consumed_mah, 0, 2**31 - 1),
+            _clamp_int(b.energy_consumed_j / 100.0, 0, 2**31 - 1),
+            _clamp_int(100.0 * b.remaining, 0, 100),
+            time_remaining,
+            state,
+            ext,
+        )
+
+    def global_position_int(self) -> Any:
+        e = self.v.est
+        s = e.full
+        vn, ve, vd = e.vel_ned_mps
+        return self.factory.global_position_int_encode(
+            self.time_boot_ms,
+            round(s.lat_deg * 1e7),
+            round(s.lon_deg * 1e7),
+            round(s.alt_amsl_m * 1000.0),
+            round(-e.pos_ned_m[2] * 1000.0),
+            _clamp_int(vn * 100.0, -INT16_MAX, INT16_MAX),
+            _clamp_int(ve * 100.0, -INT16_MAX, INT16_MAX),
+            _clamp_int(vd * 100.0, -INT16_MAX, INT16_MAX),
+            _cdeg(e.yaw_rad),
+        )
+
+    def gps_raw_int(self) -> Any:
+        e = self.v.est
+        s = e.full
+        vn, ve, _ = e.vel_ned_mps
+        ok = e.gps_ok
+        speed = math.hypot(vn, ve)
+        cog = _cdeg(math.atan2(ve, vn)) if speed > 0.2 else UINT16_MAX
+        return self.factory.gps_raw_int_encode(
+            self.time_usec,
+            mavlink.GPS_FIX_TYPE_3D_FIX if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
+            round(s.lat_deg * 1e7),
+            round(s.lon_deg * 1e7),
+            round(s.alt_amsl_m * 1000.0),
+            80 if ok else UINT16_MAX,
+            120 if ok else UINT16_MAX,
+            _clamp_int(speed * 100.0, 0, UINT16_MAX - 1),
+            cog,
+            12 if ok else 0,
+            round(s.alt_amsl_m * 1000.0),
+            500 if ok else 0,
+            800 if ok else 0,
+            100 if ok else 0,
+            0,
+            0,
+        )
+
+    def home_position(self) -> Any:
+        h = self.v.home
+        return self.factory.home_position_encode(
+            round(h.lat_deg * 1e7),
+            round(h.lon_deg * 1e7),
+            round(h.alt_amsl_m * 1000.0),
+            0.0,
+            0.0,
+            0.0,
+            [1.0, 0.0, 0.0, 0.0],
+            0.0,
+            0.0,
+            0.0,
+            self.time_usec,
+        )
+
+    def highres_imu(self) -> Any:
+        s = self.v.est.full
+        ax, ay, az = s.specific_force_frd_mps2
+        w, x, y, z = s.q_wxyz
+        # NED -> body: R^T v
+        mn, me, md = _MAG_NED_GAUSS
+        r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        mx = r00 * mn + r10 * me + r20 * md
+        my = r01 * mn + r11 * me + r21 * md
+        mz = r02 * mn + r12 * me + r22 * md
+        pressure = _isa_pressure_hpa(s.alt_amsl_m)
+        temperature = 15.0 - 0.0065 * s.alt_amsl_m
+        return self.factory.highres_imu_encode(
+            self.time_usec, ax, ay, az, *s.rates_frd_radps, mx, my, mz, pressure, 0.0, s.alt_amsl_m, temperature, 0x1FFF
+        )
+
+    def odometry(self, *, truth: bool) -> Any:
+        v = self.v
+        if truth:
+            s = v.truth()
+            pos = v.pos_ned_truth_m
+        else:
+            s = v.est.full
+            pos = v.est.pos_ned_m
+        w, x, y, z = s.q_wxyz
+        vn, ve, vd = s.vel_ned_mps
+        # NED -> body FRD: R^T v
+        bx = (1 - 2 * (y * y + z * z)) * vn + 2 * (x * y + w * z) * ve + 2 * (x * z - w * y) * vd
+        by = 2 * (x * y - w * z) * vn + (1 - 2 * (x * x + z * z)) * ve + 2 * (y * z + w * x) * vd
+        bz = 2 * (x * z + w * y) * vn + 2 * (y * z - w * x) * ve + (1 - 2 * (x * x + y * y)) * vd
+        unknown = [math.nan] + [0.0] * 20
+        return self.factory.odometry_encode(
+            int(s.t_s * 1e6),
+            mavlink.MAV_FRAME_LOCAL_NED,
+            mavlink.MAV_FRAME_BODY_FRD,
+            *pos,
+            [w, x, y, z],
+            bx,
+            by,
+            bz,
+            *s.rates_frd_radps,
+            unknown,
+            unknown,
+            0,
+            mavlink.MAV_ESTIMATOR_TYPE_NAIVE if truth else mavlink.MAV_ESTIMATOR_TYPE_UNKNOWN,
+            100,
+        )
+
+    def position_target(self) -> Any:
+        ap = self.v.autopilot
+        nav = ap.last_nav
+        sp = nav.setpoint if nav is not None else Setpoint()
+        vsp = ap.velocity_setpoint
+        mask = 0
+        pos = list(sp.pos)
+        for i, bit in enumerate((1, 2, 4)):
+            if not math.isfinite(pos[i]):
+                mask |= bit
+                pos[i] = 0.0
+        yaw = sp.yaw_rad if math.isfinite(sp.yaw_rad) else 0.0
+        if not math.isfinite(sp.yaw_rad):
+            mask |= 1024
+        mask |= 64 | 128 | 256 | 2048
+        return self.factory.position_target_local_ned_encode(
+            self.time_boot_ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *pos, *vsp, 0.0, 0.0, 0.0, yaw, 0.0
+        )
+
+    def mission_current(self) -> Any:
+        ap = self.v.autopilot
+        total = len(ap.mission_store)
+        state = ap.mission_state
+        seq = (
+            min(ap.mission_current_seq, max(total - 1, 0)) if state is not MissionState.COMPLETE else max(total - 1, 0)
+        )
+        mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 2
+        return self.factory.mission_current_encode(seq, total, int(state), mode)
+
+    def autopilot_version(self) -> Any:
+        uid = (0x5549_4C53 << 32) | self.system_id  # "UILS" + sysid: stable per instance
+        return self.factory.autopilot_version_encode(
+            AUTOPILOT_CAPABILITIES,
+            FLIGHT_SW_VERSION,
+            0,
+            0,
+            0,
+            b"uavsitl\0",
+            b"\0" * 8,
+            b"\0" * 8,
+            0,
+            0,
+            uid,
+        )
+
+    def param_value(self, params: ParamTable, name: str) -> Any:
+        spec = params.spec(name)
+        return self.factory.param_value_encode(
+            name.encode("ascii"),
+            encode_wire_value(params[name], spec.type),
+            int(spec.type),
+            len(params),
+            params.index_of(name),
+        )
+
+    def statustexts(self, severity: int, text: str) -> list[Any]:
+        self._chunk_id = self._chunk_id % 65535 + 1
+        return [
+            self.factory.statustext_encode(severity, piece, sid, seq)
+            for piece, sid, seq in statustext_chunks(text, self._chunk_id)
+        ]

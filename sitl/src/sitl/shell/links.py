@@ -1,0 +1,442 @@
+"""MAVLink links on our own sockets: UDP (PX4-style GCS/API ports) and a TCP server.
+
+Each link packs outgoing messages with its own pymavlink ``MAVLink`` instance
+(its own sequence numbers and, when configured, MAVLink 2 signing) and parses
+incoming bytes with one robust parser per remote peer. Nothing here raises on
+bad input: malformed frames, bad CRCs, unknown message ids and unsigned
+messages on a signed link are counted in :class:`LinkStats` and dropped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import socket
+import time
+from collections.abc import Callable, Hashable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.errors import LinkError
+
+__all__ = [
+    "LinkStats",
+    "MavLink",
+    "Received",
+    "TcpServerLink",
+    "UdpLink",
+    "bind_error",
+    "load_signing_key",
+    "mavlink",
+]
+
+# Messages a signed link still accepts unsigned: they only read state (MAVLink signing spec's advice).
+UNSIGNED_ALLOWED = frozenset(
+    {
+        mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+        mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
+        mavlink.MAVLINK_MSG_ID_PING,
+        mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ,
+        mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
+        mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_LIST,
+        mavlink.MAVLINK_MSG_ID_MISSION_REQUEST,
+        mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT,
+        mavlink.MAVLINK_MSG_ID_MISSION_ACK,
+        mavlink.MAVLINK_MSG_ID_TIMESYNC,
+        mavlink.MAVLINK_MSG_ID_REQUEST_DATA_STREAM,
+        mavlink.MAVLINK_MSG_ID_RADIO_STATUS,
+        mavlink.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL,
+    }
+)
+# MAVLink signing timestamps: units of 10 us since 2015-01-01.
+_SIGNING_EPOCH_S = 1420070400
+MAX_PEERS = 64
+
+
+def load_signing_key(path: Path) -> bytes:
+    """A 32-byte secret from a file: 64 hex digits, or any passphrase (SHA-256, as MAVProxy does)."""
+    try:
+        text = path.read_text(encoding="utf-8").strip()
+    except OSError as err:
+        msg = f"cannot read signing key file {path}: {err.strerror}"
+        raise LinkError(msg) from err
+    if not text:
+        msg = f"signing key file {path} is empty"
+        raise LinkError(msg)
+    if len(text) == 64:
+        with contextlib.suppress(ValueError):
+            return bytes.fromhex(text)
+    return hashlib.sha256(text.encode("utf-8")).digest()
+
+
+@dataclass
+class LinkStats:
+    """Counters per link, reported in the log and checked by the fuzz tests."""
+
+    rx_bytes: int = 0
+    rx_messages: int = 0
+    rx_bad_frames: int = 0
+    rx_unknown_ids: int = 0
+    rx_rejected_unsigned: int = 0
+    rx_other_target: int = 0
+    rx_invalid_values: int = 0
+    rx_truncated: int = 0
+    tx_messages: int = 0
+    tx_bytes: int = 0
+    tx_errors: int = 0
+    bad_reasons: dict[str, int] = field(default_factory=dict)
+
+    def bad(self, reason: str) -> None:
+        self.rx_bad_frames += 1
+        key = reason.split(" in msgID", maxsplit=1)[0].split(" Got ", maxsplit=1)[0][:60]
+        self.bad_reasons[key] = self.bad_reasons.get(key, 0) + 1
+
+    def summary(self) -> str:
+        return (
+            f"rx {self.rx_messages} msgs/{self.rx_bytes} B, bad {self.rx_bad_frames}, "
+            f"unknown-id {self.rx_unknown_ids}, "
+            f"unsigned-rejected {self.rx_rejected_unsigned}, other-target {self.rx_other_target}, "
+            f"invalid-values {self.rx_invalid_values}; tx {self.tx_messages} msgs/{self.tx_bytes} B"
+        )
+
+
+@dataclass(frozen=True)
+class Received:
+    """One good message and where it came from (``route`` leads back to the sender)."""
+
+    msg: Any
+    route: Hashable
+
+
+class _Sink:
+    """pymavlink writes packed frames into a 'file'; we take them from here."""
+
+    __slots__ = ("data",)
+
+    def __init__(self) -> None:
+        self.data = b""
+
+    def write(self, data: bytes) -> None:
+        self.data = data
+
+
+def _make_parser(key: bytes | None) -> Any:
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    if key is not None:
+        parser.signing.secret_key = key
+        parser.signing.allow_unsigned_callback = _allow_unsigned
+        parser.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
+    return parser
+
+
+def _allow_unsigned(_mav: Any, msg_id: int) -> bool:
+    return msg_id in UNSIGNED_ALLOWED
+
+
+class MavLink:
+    """Common part of a link: encoder, per-peer parsers, counters."""
+
+    def __init__(
+        self, name: str, *, system_id: int, component_id: int, signing_key: bytes | None, link_id: int
+    ) -> None:
+        self.name = name
+        self.stats = LinkStats()
+        self.signing_key = signing_key
+        self._sink = _Sink()
+        self.encoder = mavlink.MAVLink(self._sink, srcSystem=system_id, srcComponent=component_id)
+        if signing_key is not None:
+            self.encoder.signing.secret_key = signing_key
+            self.encoder.signing.sign_outgoing = True
+            self.encoder.signing.link_id = link_id & 0xFF
+            self.encoder.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
+        self._parsers: dict[Hashable, Any] = {}
+
+    def pack(self, msg: Any) -> bytes:
+        buf: bytes = msg.pack(self.encoder)
+        self.encoder.seq = (self.encoder.seq + 1) % 256
+        return buf
+
+    def _parser(self, peer: Hashable) -> Any:
+        parser = self._parsers.get(peer)
+        if parser is None:
+            if len(self._parsers) >= MAX_PEERS:
+                self._parsers.pop(next(iter(self._parsers)))
+            parser = _make_parser(self.signing_key)
+            self._parsers[peer] = parser
+        return parser
+
+    def send(self, msg: Any, route: Hashable | None = None) -> None:
+        """Send to ``route``'s peer, or to every peer of the link (``None``)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def forget_peer(self, peer: Hashable) -> None:
+        self._parsers.pop(peer, None)
+
+    def parse(self, data: bytes, peer: Hashable, *, datagram: bool) -> Iterator[Any]:
+        """Good messages in ``data``; everything else is counted and dropped."""
+        stats = self.stats
+        stats.rx_bytes += len(data)
+        parser = self._parser(peer)
+        try:
+            msgs = parser.parse_buffer(data) or []
+        except Exception as err:  # pymavlink can raise on pathological input; never let it out
+            stats.bad(f"parser error: {type(err).__name__}")
+            msgs = []
+            _reset_parser(parser)
+        if datagram and parser.buf_len() > 0:
+            stats.rx_truncated += 1
+            _reset_parser(parser)
+        for msg in msgs:
+            msg_type = msg.get_type()
+            if msg_type == "BAD_DATA":
+                reason = str(getattr(msg, "reason", "bad data"))
+                if "signature" in reason:
+                    stats.rx_rejected_unsigned += 1
+                else:
+                    stats.bad(reason)
+                continue
+            if msg_type.startswith("UNKNOWN_"):
+                stats.rx_unknown_ids += 1
+                continue
+            stats.rx_messages += 1
+            yield msg
+
+
+def _reset_parser(parser: Any) -> None:
+    parser.buf = bytearray()
+    parser.buf_index = 0
+    parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+
+
+def bind_error(what: str, host: str, port: int, err: OSError) -> LinkError:
+    hint = ""
+    if err.errno == errno.EADDRINUSE:
+        hint = " (port busy: another uav-sitl or PX4 SITL running? choose another port with the CLI flag)"
+    msg = f"{what}: cannot bind {host}:{port}: {err.strerror}{hint}"
+    return LinkError(msg)
+
+
+class UdpLink(MavLink):
+    """PX4-style UDP link: bind a local port, send to the remote port and to every peer heard recently."""
+
+    PEER_TIMEOUT_S = 10.0
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        local: tuple[str, int],
+        remote: tuple[str, int],
+        system_id: int,
+        component_id: int,
+        signing_key: bytes | None = None,
+        link_id: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        super().__init__(name, system_id=system_id, component_id=component_id, signing_key=signing_key, link_id=link_id)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind(local)
+        except OSError as err:
+            self.sock.close()
+            what = f"{name} link (UDP)"
+            raise bind_error(what, local[0], local[1], err) from err
+        self.sock.setblocking(False)
+        with contextlib.suppress(OSError):
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
+        self.local_port = int(self.sock.getsockname()[1])
+        self.remote = (socket.gethostbyname(remote[0]), remote[1])
+        self._peers: dict[tuple[str, int], float] = {}
+        self._clock = clock
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def read(self) -> list[Received]:
+        out: list[Received] = []
+        now = self._clock()
+        for _ in range(256):
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                break  # e.g. ICMP port unreachable reported on a later recv
+            peer = (addr[0], int(addr[1]))
+            if peer not in self._peers and len(self._peers) >= MAX_PEERS:
+                self._expire(now, force=True)
+            self._peers[peer] = now
+            route = (self.name, peer)
+            out.extend(Received(msg, route) for msg in self.parse(data, route, datagram=True))
+        return out
+
+    def _expire(self, now: float, *, force: bool = False) -> None:
+        for peer, last in list(self._peers.items()):
+            if now - last > self.PEER_TIMEOUT_S:
+                del self._peers[peer]
+                self.forget_peer((self.name, peer))
+        if force and len(self._peers) >= MAX_PEERS:
+            oldest = min(self._peers, key=self._peers.__getitem__)
+            del self._peers[oldest]
+
+    def destinations(self) -> list[tuple[str, int]]:
+        self._expire(self._clock())
+        dests = [self.remote]
+        dests.extend(p for p in self._peers if p != self.remote)
+        return dests
+
+    def send(self, msg: Any, route: Hashable | None = None) -> None:
+        """Pack once; send to ``route``'s peer, or to the remote and every live peer."""
+        buf = self.pack(msg)
+        if route is not None:
+            dests = [route[1]] if isinstance(route, tuple) and route[0] == self.name else []
+        else:
+            dests = self.destinations()
+        for dest in dests:
+            try:
+                self.sock.sendto(buf, dest)
+                self.stats.tx_messages += 1
+                self.stats.tx_bytes += len(buf)
+            except OSError:
+                self.stats.tx_errors += 1
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class _TcpClient:
+    __slots__ = ("addr", "out", "sock")
+
+    def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
+        self.sock = sock
+        self.addr = addr
+        self.out = bytearray()
+
+
+class TcpServerLink(MavLink):
+    """A TCP server; every accepted connection is a peer that gets all broadcast traffic."""
+
+    MAX_OUT_BUFFER = 4 << 20
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        local: tuple[str, int],
+        system_id: int,
+        component_id: int,
+        max_clients: int = 8,
+        signing_key: bytes | None = None,
+        link_id: int = 0,
+    ) -> None:
+        super().__init__(name, system_id=system_id, component_id=component_id, signing_key=signing_key, link_id=link_id)
+        self.server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.server.bind(local)
+            self.server.listen(max_clients)
+        except OSError as err:
+            self.server.close()
+            what = f"{name} link (TCP server)"
+            raise bind_error(what, local[0], local[1], err) from err
+        self.server.setblocking(False)
+        self.local_port = int(self.server.getsockname()[1])
+        self.max_clients = max_clients
+        self.clients: dict[int, _TcpClient] = {}
+        self._next_id = 0
+
+    def fileno(self) -> int:
+        return self.server.fileno()
+
+    def accept(self) -> _TcpClient | None:
+        try:
+            sock, addr = self.server.accept()
+        except (BlockingIOError, InterruptedError, OSError):
+            return None
+        if len(self.clients) >= self.max_clients:
+            sock.close()
+            return None
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._next_id += 1
+        client = _TcpClient(sock, (addr[0], int(addr[1])))
+        self.clients[self._next_id] = client
+        return client
+
+    def client_id(self, client: _TcpClient) -> int:
+        return next(cid for cid, c in self.clients.items() if c is client)
+
+    def read_client(self, cid: int) -> list[Received]:
+        client = self.clients.get(cid)
+        if client is None:
+            return []
+        out: list[Received] = []
+        for _ in range(64):
+            try:
+                data = client.sock.recv(65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                data = b""
+            if not data:
+                self.drop(cid)
+                break
+            route = (self.name, cid)
+            out.extend(Received(msg, route) for msg in self.parse(data, route, datagram=False))
+        return out
+
+    def drop(self, cid: int) -> None:
+        client = self.clients.pop(cid, None)
+        if client is not None:
+            with contextlib.suppress(OSError):
+                client.sock.close()
+            self.forget_peer((self.name, cid))
+
+    def send(self, msg: Any, route: Hashable | None = None) -> None:
+        if not self.clients:
+            # still advance the sequence like an always-on link would
+            self.encoder.seq = (self.encoder.seq + 1) % 256
+            return
+        buf = self.pack(msg)
+        if route is not None:
+            targets = [route[1]] if isinstance(route, tuple) and route[0] == self.name else []
+        else:
+            targets = list(self.clients)
+        for cid in targets:
+            client = self.clients.get(cid)
+            if client is None:
+                continue
+            client.out += buf
+            self.stats.tx_messages += 1
+            self.stats.tx_bytes += len(buf)
+            self.flush(cid)
+
+    def flush(self, cid: int) -> None:
+        client = self.clients.get(cid)
+        if client is None or not client.out:
+            return
+        try:
+            sent = client.sock.send(client.out)
+            del client.out[:sent]
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError:
+            self.stats.tx_errors += 1
+            self.drop(cid)
+            return
+        if len(client.out) > self.MAX_OUT_BUFFER:
+            self.stats.tx_errors += 1
+            self.drop(cid)
+
+    def close(self) -> None:
+        for cid in list(self.clients):
+            self.drop(cid)
+        self.server.close()
