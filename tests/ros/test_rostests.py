@@ -1,8 +1,8 @@
 """Run every ``tests/ros/**/*.test`` rostest file with a real master.
 
 Each .test file is a roslaunch file with ``<test>`` nodes; ``rostest`` starts its
-own roscore on a free port, so files are independent. A failing test node makes
-rostest exit non-zero, and this wrapper shows its output.
+own roscore on a free port, so files are independent. rostest runs without
+``--text`` on purpose: with ``--text`` it exits 0 even when a test fails.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+
 from helpers.procs import artifacts_dir, slug
 
 HERE = Path(__file__).resolve().parent
@@ -21,15 +22,22 @@ TEST_FILES = sorted(HERE.rglob("*.test"))
 def test_rostest(test_file: Path) -> None:
     results = artifacts_dir() / "rostest"
     results.mkdir(exist_ok=True)
-    proc = subprocess.run(
-        ["rostest", "--text", f"--results-base-dir={results}", str(test_file)],
+    proc = subprocess.run(  # noqa: S603
+        [
+            "rostest",
+            "--package=uav_rostests",
+            f"--pkgdir={HERE}",
+            f"--results-base-dir={results}",
+            str(test_file),
+        ],
         capture_output=True,
         text=True,
         timeout=280,
         check=False,
     )
-    log = artifacts_dir() / "logs" / f"rostest_{slug(test_file.name)}.log"
+    log = artifacts_dir() / "logs" / f"rostest_{slug(str(test_file.relative_to(HERE)))}.log"
     log.parent.mkdir(exist_ok=True)
     log.write_text(proc.stdout + "\n--- stderr ---\n" + proc.stderr)
     tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-80:])
-    assert proc.returncode == 0, f"rostest {test_file.name} failed (full log: {log}):\n{tail}"
+    assert proc.returncode == 0, f"rostest {test_file.name} failed with {proc.returncode} (full log: {log}):\n{tail}"
+    assert "RESULT: SUCCESS" in proc.stdout, f"rostest {test_file.name} did not report success:\n{tail}"
