@@ -11,7 +11,6 @@ import subprocess
 from pathlib import Path
 
 import pytest
-
 from helpers.procs import artifacts_dir, slug
 
 HERE = Path(__file__).resolve().parent
@@ -22,7 +21,7 @@ TEST_FILES = sorted(HERE.rglob("*.test"))
 def test_rostest(test_file: Path) -> None:
     results = artifacts_dir() / "rostest"
     results.mkdir(exist_ok=True)
-    proc = subprocess.run(  # noqa: S603
+    proc = subprocess.run(
         [
             "rostest",
             "--package=uav_rostests",
