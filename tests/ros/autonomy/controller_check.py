@@ -1,4 +1,5 @@
-# ruff: noqa: PT009  (a rostest node: unittest assertions are how rosunit reports)
+#!/usr/bin/env python3
+
 """rostest node: the real waypoint_controller node flies a fake PX4 (fake_px4.py) through every state."""
 
 from __future__ import annotations
@@ -200,4 +201,4 @@ class ControllerAgainstFakePx4(unittest.TestCase):
 
 
 if __name__ == "__main__":
-    rostest.rosrun("uav_autonomy", "autonomy_controller_fake_peer", ControllerAgainstFakePx4)
+    rostest.rosrun("uav_rostests", "autonomy_controller_fake_peer", ControllerAgainstFakePx4)

@@ -1,4 +1,5 @@
-# ruff: noqa: PT009  (a rostest node: unittest assertions are how rosunit reports)
+#!/usr/bin/env python3
+
 """rostest node: layers in -> features, goal, reason and path out; services and moving targets."""
 
 from __future__ import annotations
@@ -188,4 +189,4 @@ class Pipeline(unittest.TestCase):
 
 
 if __name__ == "__main__":
-    rostest.rosrun("uav_autonomy", "autonomy_pipeline", Pipeline)
+    rostest.rosrun("uav_rostests", "autonomy_pipeline", Pipeline)
