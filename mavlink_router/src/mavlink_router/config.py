@@ -22,6 +22,7 @@ from __future__ import annotations
 import difflib
 import enum
 import ipaddress
+import os
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -379,7 +380,7 @@ class _Reader:
         if value is None:
             return None
         path = Path(value.text).expanduser()
-        return path if path.is_absolute() else value.base_dir / path
+        return Path(os.path.normpath(path if path.is_absolute() else value.base_dir / path))
 
     def where(self, key: str) -> str:
         value = self.section.values.get(key.lower())

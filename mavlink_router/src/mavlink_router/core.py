@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from mavlink_router.dedup import Deduplicator
-from mavlink_router.frames import FrameParser, MessageSpec, frame_header
+from mavlink_router.frames import Frame, FrameParser, MessageSpec, frame_header
 from mavlink_router.routing import Filters, Learned, RoutingTable
 from mavlink_router.signing import SignatureCheck, SignatureVerifier
 
@@ -90,7 +90,18 @@ class ArmState:
 
 
 class _Endpoint:
-    __slots__ = ("in_filter", "last_seq", "name", "parser", "protected", "stats", "verifier")
+    __slots__ = (
+        "crc_mark",
+        "garbage_mark",
+        "idle_mark",
+        "in_filter",
+        "last_seq",
+        "name",
+        "parser",
+        "protected",
+        "stats",
+        "verifier",
+    )
 
     def __init__(
         self,
@@ -106,6 +117,9 @@ class _Endpoint:
         self.protected: frozenset[int] = signing.protected_msg_ids if signing is not None else frozenset()
         self.stats = EndpointStats()
         self.last_seq: dict[int, int] = {}
+        self.crc_mark = 0
+        self.garbage_mark = 0
+        self.idle_mark = 0
 
 
 class RouterCore:
@@ -170,22 +184,36 @@ class RouterCore:
         self._eps[index].parser.reset()
 
     # -- the hot path --------------------------------------------------------------
-    def ingest(self, index: int, data: bytes, now_s: float) -> list[Routed]:  # noqa: PLR0912, PLR0915 - one loop on purpose
+    def ingest(self, index: int, data: bytes, now_s: float) -> list[Routed]:
         """Process bytes received on endpoint ``index`` at UNIX time ``now_s``.
 
         Returns every frame accepted for routing (for the telemetry log too) with
         the slots it must be written to.
         """
         ep = self._eps[index]
+        return self._process(index, ep, ep.parser.feed(data), now_s)
+
+    def flush_idle(self, index: int, now_s: float) -> list[Routed]:
+        """Call periodically: if no byte arrived on ``index`` since the last call, flush its parser.
+
+        See :meth:`mavlink_router.frames.FrameParser.flush` (streams only hold data back).
+        """
+        ep = self._eps[index]
+        parser = ep.parser
+        if parser.pending_bytes == 0 or parser.bytes_in != ep.idle_mark:
+            ep.idle_mark = parser.bytes_in
+            return []
+        return self._process(index, ep, parser.flush(), now_s)
+
+    def _process(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:  # noqa: PLR0912
         stats = ep.stats
         parser = ep.parser
-        crc_before = parser.crc_errors
-        garbage_before = parser.garbage_bytes
-        frames = parser.feed(data)
-        if parser.crc_errors != crc_before:
-            stats.crc_errors += parser.crc_errors - crc_before
-        if parser.garbage_bytes != garbage_before:
-            stats.garbage_bytes += parser.garbage_bytes - garbage_before
+        if parser.crc_errors != ep.crc_mark:
+            stats.crc_errors += parser.crc_errors - ep.crc_mark
+            ep.crc_mark = parser.crc_errors
+        if parser.garbage_bytes != ep.garbage_mark:
+            stats.garbage_bytes += parser.garbage_bytes - ep.garbage_mark
+            ep.garbage_mark = parser.garbage_bytes
         if not frames:
             return []
         dedup = self._dedup

@@ -98,6 +98,8 @@ class Endpoint(abc.ABC):
     """Base class: a name, a routing slot, statistics and lifecycle."""
 
     kind = "endpoint"
+    stream = False
+    """Byte-stream endpoints (TCP, serial) reassemble frames across reads."""
     dynamic = False
     """Dynamic endpoints (accepted TCP clients) are removed when they close."""
 
@@ -267,6 +269,8 @@ class UdpEndpoint(Endpoint):
 
 class StreamEndpoint(Endpoint):
     """Shared write path of TCP and serial endpoints (see the module docstring)."""
+
+    stream = True
 
     def __init__(self, name: str, host: Host, queue_limit: int) -> None:
         super().__init__(name, host)

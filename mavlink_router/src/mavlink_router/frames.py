@@ -17,7 +17,11 @@ Rules, as in mavlink-router (``Endpoint::read_msg``):
 * A frame with an unknown message ID is forwarded untouched without a CRC check
   (it may be a dialect message we do not know). To keep random garbage from
   being forwarded as "unknown messages", such a frame is accepted only when it is
-  followed by another start marker or by the end of the data read so far.
+  followed by another start marker, or by the end of a datagram, and only when no
+  CRC-valid known frame starts inside it (then it is a false start swallowing real
+  frames). On a byte stream, a frame that ends exactly at the end of the data read
+  so far is held until the next byte arrives or the input has been idle
+  (:meth:`FrameParser.flush`).
 * MAVLink 2 frames with incompatibility flags other than ``SIGNED`` (0x01) are
   rejected, as the MAVLink specification requires.
 * Target fields come from the table; in MAVLink 2 a trailing zero field may be
@@ -133,7 +137,7 @@ class FrameParser:
     :attr:`garbage_bytes` (bytes skipped while resynchronising), :attr:`frames`.
     """
 
-    __slots__ = ("_pending", "_specs", "_stream", "crc_errors", "frames", "garbage_bytes")
+    __slots__ = ("_pending", "_specs", "_stream", "bytes_in", "crc_errors", "frames", "garbage_bytes")
 
     def __init__(self, table: Mapping[int, MessageSpec], *, stream: bool) -> None:
         self._specs: dict[int, tuple[bytes, int, int]] = {
@@ -145,6 +149,7 @@ class FrameParser:
         self.crc_errors = 0
         self.garbage_bytes = 0
         self.frames = 0
+        self.bytes_in = 0
 
     @property
     def pending_bytes(self) -> int:
@@ -155,10 +160,26 @@ class FrameParser:
         """Forget a partial frame (after a reconnect)."""
         self._pending = b""
 
-    def feed(self, data: bytes) -> list[Frame]:  # noqa: PLR0912, PLR0915 - the hot path is one loop on purpose
+    def feed(self, data: bytes) -> list[Frame]:
         """Return every complete, valid frame in ``data`` (plus what was pending)."""
-        stream = self._stream
-        buf = self._pending + data if stream and self._pending else data
+        self.bytes_in += len(data)
+        if self._stream:
+            return self._parse(self._pending + data if self._pending else data, stream=True)
+        return self._parse(data, stream=False)
+
+    def flush(self) -> list[Frame]:
+        """The input is at rest: parse what is pending as if no more bytes were coming.
+
+        A stream holds back an unknown-ID frame that ends exactly at the end of the
+        data (the next byte must confirm it is followed by a start marker) and any
+        incomplete frame. When nothing more arrives, the caller flushes: the held
+        frame is accepted, and an incomplete "frame" that never completed is
+        treated as garbage, so a false start marker cannot stall the stream.
+        """
+        pending, self._pending = self._pending, b""
+        return self._parse(pending, stream=False) if pending else []
+
+    def _parse(self, buf: bytes, *, stream: bool) -> list[Frame]:  # noqa: PLR0912, PLR0915 - one hot loop on purpose
         specs = self._specs
         crc = _crc
         out: list[Frame] = []
@@ -222,7 +243,13 @@ class FrameParser:
                 tcomp = NO_TARGET if ofs < 0 else buf[payload + ofs] if ofs < plen else 0
             else:
                 after = pos + flen
-                if after < n and buf[after] != STX_V2 and buf[after] != STX_V1:
+                if after < n:
+                    if buf[after] != STX_V2 and buf[after] != STX_V1:
+                        pos = self._resync(buf, pos + 1, pos)
+                        continue
+                elif stream:
+                    break  # wait for the next byte (or flush()) to confirm the frame boundary
+                if self._hides_known_frame(buf, pos + 1, after):
                     pos = self._resync(buf, pos + 1, pos)
                     continue
                 tsys = tcomp = NO_TARGET
@@ -232,6 +259,39 @@ class FrameParser:
             self._pending = buf[pos:] if pos < n else b""
         self.frames += len(out)
         return out
+
+    def _hides_known_frame(self, buf: bytes, start: int, end: int) -> bool:
+        """Does a complete, CRC-valid frame of a known ID start inside ``buf[start:end]``?
+
+        Then the unknown-ID "frame" around it is misframed garbage (a real payload
+        holds a valid MAVLink frame with a matching CRC by chance once in 65536).
+        """
+        specs = self._specs
+        n = len(buf)
+        match = _MARKER.search(buf, start, end)
+        while match is not None:
+            pos = match.start()
+            if buf[pos] == STX_V2 and n - pos >= 12:
+                plen = buf[pos + 1]
+                flen = plen + (25 if buf[pos + 2] & IFLAG_SIGNED else 12)
+                msgid = buf[pos + 7] | (buf[pos + 8] << 8) | (buf[pos + 9] << 16)
+                crc_end = pos + 10 + plen
+            elif buf[pos] == STX_V1 and n - pos >= 8:
+                plen = buf[pos + 1]
+                flen = plen + 8
+                msgid = buf[pos + 5]
+                crc_end = pos + 6 + plen
+            else:
+                flen = n + 1
+                msgid = -1
+                crc_end = 0
+            spec = specs.get(msgid)
+            if spec is not None and n - pos >= flen:
+                crc = _crc(spec[0], _crc(buf[pos + 1 : crc_end]))
+                if crc == buf[crc_end] | (buf[crc_end + 1] << 8):
+                    return True
+            match = _MARKER.search(buf, pos + 1, end)
+        return False
 
     def _resync(self, buf: bytes, search_from: int, skip_from: int) -> int:
         """Skip to the next start marker at or after ``search_from``; count the skipped bytes."""

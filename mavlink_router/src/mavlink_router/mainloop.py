@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from mavlink_router.config import LogMode, RouterConfig, as_dict
-from mavlink_router.core import EndpointStats, RouterCore, SigningPolicy
+from mavlink_router.core import EndpointStats, Routed, RouterCore, SigningPolicy
 from mavlink_router.dialect import message_ids
 from mavlink_router.endpoints import (
     Endpoint,
@@ -228,8 +228,10 @@ class Router:
         """The hot path: route what endpoint ``slot`` read and write it out."""
         now = self._clock()
         routed = self.core.ingest(slot, data, now)
-        if not routed:
-            return
+        if routed:
+            self._dispatch(slot, routed, now)
+
+    def _dispatch(self, slot: int, routed: list[Routed], now: float) -> None:
         if self._armed_logging and self.core.arm_state is not self._arm_seen:
             self._on_arm_change()
         tlog = self.tlog
@@ -330,8 +332,13 @@ class Router:
 
     def _tick(self) -> None:
         now = self._monotonic()
-        for endpoint in self.endpoints:
+        for endpoint in list(self.endpoints):
             endpoint.tick(now)
+            if endpoint.stream and endpoint.slot >= 0:
+                wall = self._clock()
+                routed = self.core.flush_idle(endpoint.slot, wall)
+                if routed:
+                    self._dispatch(endpoint.slot, routed, wall)
 
     def _flush_log(self) -> None:
         if self.tlog is not None:
