@@ -200,22 +200,9 @@ def test_cli_like_mavlink_routerd(tmp_path: Path) -> None:
     conf.write_text("[UdpEndpoint gcs]\nMode=Normal\nAddress=127.0.0.1\n")
     empty = tmp_path / "conf.d"
     empty.mkdir()
-    args = parse_args(
-        [
-            "-c",
-            str(conf),
-            "-d",
-            str(empty),
-            "-e",
-            "127.0.0.1",
-            "-e",
-            "10.0.0.2:14600",
-            "-p",
-            "127.0.0.1:5760",
-            "0.0.0.0:14555",
-        ]
-        + ["-t", "0", "-l", str(tmp_path / "logs"), "-r", "-s", "42", "--stats-interval", "1"]
-    )
+    endpoints = ["-e", "127.0.0.1", "-e", "10.0.0.2:14600", "-p", "127.0.0.1:5760", "0.0.0.0:14555"]
+    general = ["-t", "0", "-l", str(tmp_path / "logs"), "-r", "-s", "42", "--stats-interval", "1"]
+    args = parse_args(["-c", str(conf), "-d", str(empty), *endpoints, *general])
     cfg, files = build_config(args)
     assert files == [conf]
     assert [(u.address, u.port, u.mode) for u in cfg.udp] == [
