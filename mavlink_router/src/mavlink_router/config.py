@@ -353,11 +353,12 @@ _MSG_ID_LIST = _parse_int_list(0, 0xFFFFFF)
 class _Reader:
     """Pulls typed values out of one section and rejects unknown keys."""
 
-    def __init__(self, section: _Section) -> None:
+    def __init__(self, section: _Section, known: Iterable[str]) -> None:
         self.section = section
-        self._used: set[str] = set()
         kind = _SECTION_KINDS[section.kind]
         self.title = f"[{kind} {section.name}]" if section.name else f"[{kind}]"
+        self._known = tuple(known)
+        self._reject_unknown()
 
     def get(self, key: str, parse: Callable[[str], T], default: T) -> T:
         value = self._lookup(key)
@@ -388,20 +389,21 @@ class _Reader:
         source = value.source if value is not None else self.section.source
         return f"{source}:{line}: {self.title}"
 
-    def finish(self, known: Iterable[str]) -> None:
-        known_list = list(known)
+    def _reject_unknown(self) -> None:
+        """An unknown key is reported first: a typo also explains a "missing" key."""
+        known_lower = {k.lower() for k in self._known}
         for lowered, value in self.section.values.items():
-            if lowered not in self._used:
-                hint = _suggest(value.key, known_list)
+            if lowered not in known_lower:
+                hint = _suggest(value.key, self._known)
                 msg = (
                     f"{value.source}:{value.line}: {self.title} has unknown key {value.key!r}{hint}; "
-                    f"keys of this section: {', '.join(known_list)}"
+                    f"keys of this section: {', '.join(self._known)}"
                 )
                 raise ConfigError(msg)
 
     def _lookup(self, key: str) -> _Value | None:
         lowered = key.lower()
-        self._used.add(lowered)
+        assert lowered in {k.lower() for k in self._known}, f"schema bug: {key} is read but not declared"
         return self.section.values.get(lowered)
 
     def _convert(self, value: _Value, parse: Callable[[str], T]) -> T:
@@ -487,7 +489,7 @@ _GENERAL_KEYS = (
 def _general(section: _Section | None) -> GeneralConfig:
     if section is None:
         return GeneralConfig()
-    r = _Reader(section)
+    r = _Reader(section, _GENERAL_KEYS)
     log_mode_text = r.get("LogMode", _parse_choice(m.value for m in LogMode), LogMode.ALWAYS.value)
     log_system_id = r.get("LogSystemId", _parse_int(1, 255), 0)
     general = GeneralConfig(
@@ -509,7 +511,6 @@ def _general(section: _Section | None) -> GeneralConfig:
         tcp_server_require_signing=r.get("TcpServerRequireSigning", _parse_bool, False),
         tx_queue_limit=r.get("TxQueueLimit", _parse_int(1, 1_000_000), DEFAULT_TX_QUEUE_LIMIT),
     )
-    r.finish(_GENERAL_KEYS)
     if general.tcp_server_require_signing and general.signing_key_file is None:
         msg = f"{r.where('TcpServerRequireSigning')} TcpServerRequireSigning = true needs SigningKeyFile in [General]"
         raise ConfigError(msg)
@@ -517,7 +518,7 @@ def _general(section: _Section | None) -> GeneralConfig:
 
 
 def _udp(section: _Section, general: GeneralConfig, taken_client_ports: list[tuple[str, int]]) -> UdpEndpointConfig:
-    r = _Reader(section)
+    r = _Reader(section, ("Address", "Mode", "Port", "Filter", *_COMMON_KEYS))
     address = r.require("Address", _parse_address, "the IP to send to (Normal) or to bind (Server)")
     mode = r.require("Mode", _parse_udp_mode, "Normal or Server")
     port = r.get("Port", _PORT, 0)
@@ -531,28 +532,25 @@ def _udp(section: _Section, general: GeneralConfig, taken_client_ports: list[tup
     no_ids: frozenset[int] = frozenset()
     legacy = r.get("Filter", _MSG_ID_LIST, no_ids)  # mavlink-routerd's old name of AllowMsgIdOut
     options = _options(r, general, legacy)
-    r.finish(("Address", "Mode", "Port", "Filter", *_COMMON_KEYS))
     return UdpEndpointConfig(section.name, address, port, mode, options)
 
 
 def _tcp(section: _Section, general: GeneralConfig) -> TcpEndpointConfig:
-    r = _Reader(section)
+    r = _Reader(section, ("Address", "Port", "RetryTimeout", *_COMMON_KEYS))
     address = r.require("Address", _parse_address, "the IP to connect to")
     port = r.require("Port", _PORT, "the TCP port to connect to")
     retry = r.get("RetryTimeout", _parse_float(0.0, 86400.0), DEFAULT_RETRY_TIMEOUT_S)
     options = _options(r, general)
-    r.finish(("Address", "Port", "RetryTimeout", *_COMMON_KEYS))
     return TcpEndpointConfig(section.name, address, port, retry, options)
 
 
 def _uart(section: _Section, general: GeneralConfig) -> UartEndpointConfig:
-    r = _Reader(section)
+    r = _Reader(section, ("Device", "Baud", "FlowControl", *_COMMON_KEYS))
     device = r.require("Device", _parse_text, "the serial device, e.g. /dev/ttyUSB0")
     default_bauds: tuple[int, ...] = (DEFAULT_BAUD,)
     bauds = r.get("Baud", _parse_baud_list, default_bauds)
     flow = r.get("FlowControl", _parse_bool, False)
     options = _options(r, general)
-    r.finish(("Device", "Baud", "FlowControl", *_COMMON_KEYS))
     return UartEndpointConfig(section.name, device, bauds, flow, options)
 
 

@@ -57,6 +57,7 @@ WRITE_BATCH_BYTES = 65536
 UDP_CLIENT_REVERT_S = 5.0
 """A UDP client replies to the last sender; after this much silence it goes back to its Address:Port."""
 SOCKET_BUFFER_BYTES = 1 << 20
+TCP_SNDBUF_BYTES = 64 * 1024
 FIRST_RETRY_S = 0.25
 UART_BAUD_CYCLE_S = 5.0
 
@@ -433,6 +434,9 @@ class _SocketStream(StreamEndpoint):
 def _tune_tcp(sock: socket.socket) -> None:
     sock.setblocking(False)
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    # A bounded kernel buffer (no autotuning to megabytes) keeps the backlog in our
+    # fair, counted queues, where a slow reader's excess is dropped, not in the kernel.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_SNDBUF_BYTES)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
 
 
