@@ -5,7 +5,13 @@ from setuptools import setup
 
 setup(
     **generate_distutils_setup(
-        packages=["uav_sim_bridge", "uav_sim_bridge.core", "uav_sim_bridge.ros", "uav_sim_bridge.nodes"],
+        packages=[
+            "uav_sim_bridge",
+            "uav_sim_bridge.core",
+            "uav_sim_bridge.render",
+            "uav_sim_bridge.ros",
+            "uav_sim_bridge.nodes",
+        ],
         package_dir={"": "src"},
     )
 )

@@ -118,8 +118,12 @@ class TriangleGrid:
         parts = [self._items[self._start[r * cols + c0] : self._start[r * cols + c1 + 1]] for r in range(r0, r1 + 1)]
         return np.asarray(np.unique(np.concatenate(parts)), dtype=np.int64)
 
-    def highest_surface(self, x_m: float, y_m: float) -> tuple[float, int]:
-        """Highest triangle above or below ``(x, y)``: ``(z_m, instance_id)``, or ``(-inf, 0)`` if none."""
+    def highest_surface(self, x_m: float, y_m: float, below_z_m: float = math.inf) -> tuple[float, int]:
+        """Highest triangle crossing the vertical at ``(x, y)`` not above ``below_z_m``.
+
+        Returns:
+            ``(z_m, instance_id)``, or ``(-inf, 0)`` if there is none.
+        """
         idx = self._candidates(x_m, y_m, x_m, y_m)
         if len(idx) == 0:
             return -math.inf, 0
@@ -139,8 +143,10 @@ class TriangleGrid:
         if not np.any(hit):
             return -math.inf, 0
         z = u * a[:, 2] + v * b[:, 2] + w * c[:, 2]
-        z = np.where(hit, z, -np.inf)
+        z = np.where(hit & (z <= below_z_m), z, -np.inf)
         k = int(np.argmax(z))
+        if not np.isfinite(z[k]):
+            return -math.inf, 0
         return float(z[k]), int(self.instance_ids[idx[k]])
 
     def sphere_contacts(self, center_m: npt.ArrayLike, radius_m: float) -> list[SphereContact]:

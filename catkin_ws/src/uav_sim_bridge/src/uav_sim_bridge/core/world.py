@@ -45,6 +45,7 @@ __all__ = [
     "ObjectPose",
     "World",
     "WorldObject",
+    "cache_slot",
     "config_key",
     "generate_world",
     "load_or_generate",
@@ -160,6 +161,25 @@ class World:
     def surface_height_at(self, x_m: float, y_m: float) -> tuple[float, int]:
         """Highest static surface (terrain, road, roof, tree top) at ``(x, y)``: ``(z_m, instance_id)``."""
         z_obj, iid = self.static_grid.highest_surface(x_m, y_m)
+        z_ter = float(self.terrain.height_at(x_m, y_m))
+        if z_obj > z_ter:
+            return z_obj, iid
+        return z_ter, TERRAIN_INSTANCE_ID
+
+    @cached_property
+    def support_grid(self) -> TriangleGrid:
+        """Triangles a vehicle can stand on besides the terrain: roads and buildings (incl. custom buildings)."""
+        cls = self.instance_class[self.face_instance]
+        mask = ((cls == ObjectClass.ROAD) | (cls == ObjectClass.BUILDING)) & (self.mesh.face_lod != LOD_FAR)
+        return TriangleGrid(self.triangles(mask), self.face_instance[mask], cell_m=8.0)
+
+    def ground_height_at(self, x_m: float, y_m: float, below_z_m: float = float("inf")) -> tuple[float, int]:
+        """Highest terrain, road or roof surface at ``(x, y)`` not above ``below_z_m``: ``(z_m, instance_id)``.
+
+        This is what the SITL's ground should be under a vehicle at height ``below_z_m``
+        (TERRAIN_REPORT): trees, people and vehicles are obstacles, not ground.
+        """
+        z_obj, iid = self.support_grid.highest_surface(x_m, y_m, below_z_m)
         z_ter = float(self.terrain.height_at(x_m, y_m))
         if z_obj > z_ter:
             return z_obj, iid
@@ -304,13 +324,17 @@ def config_key(cfg: WorldConfig) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
+def cache_slot(cfg: WorldConfig, cache_dir: Path) -> Path:
+    """The folder under ``cache_dir`` where :func:`load_or_generate` keeps the world of ``cfg``."""
+    return Path(cache_dir) / f"{cfg.name}-{config_key(cfg)[:16]}"
+
+
 def load_or_generate(cfg: WorldConfig, cache_dir: Path) -> World:
     """Load the cached world of ``cfg`` from ``cache_dir``, or generate and cache it.
 
     A corrupt or stale cache entry is regenerated, never trusted.
     """
-    key = config_key(cfg)
-    slot = Path(cache_dir) / f"{cfg.name}-{key[:16]}"
+    slot = cache_slot(cfg, cache_dir)
     if slot.is_dir():
         try:
             return World.load(slot)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -33,40 +34,13 @@ from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID
 from uav_sim_bridge.core.mesh import LOD_ALWAYS, LOD_FAR, LOD_NEAR
 from uav_sim_bridge.core.objects import ObjectPose
+from uav_sim_bridge.core.render_settings import RenderSettings
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.world import World
 from uav_sim_bridge.errors import RenderError
 from uav_sim_bridge.render import shaders
 
 __all__ = ["RenderSettings", "RenderedFrame", "Renderer", "gl_projection", "gl_view"]
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """Look and speed knobs of the renderer (``render`` section of ``config/sim_bridge.yaml``)."""
-
-    tile_size_m: float = 50.0
-    lod_distance_m: float = 160.0
-    texture_gain: float = 0.9
-    haze_distance_m: float = 1800.0
-    sun_azimuth_deg: float = 135.0
-    sun_elevation_deg: float = 55.0
-    pad_half_size_m: float = 7.0
-    frustum_culling: bool = True
-
-    def __post_init__(self) -> None:
-        if self.tile_size_m <= 0 or self.lod_distance_m < 0 or self.haze_distance_m <= 0:
-            msg = "tile_size_m and haze_distance_m must be > 0 and lod_distance_m >= 0"
-            raise ValueError(msg)
-        if not 0 < self.sun_elevation_deg <= 90:
-            msg = "sun_elevation_deg must be in (0, 90]"
-            raise ValueError(msg)
-
-    @property
-    def sun_direction(self) -> tuple[float, float, float]:
-        """Unit vector towards the sun in ``map`` (azimuth clockwise from north)."""
-        az, el = math.radians(self.sun_azimuth_deg), math.radians(self.sun_elevation_deg)
-        return (math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el))
 
 
 @dataclass(frozen=True)
@@ -111,13 +85,12 @@ def gl_view(t_map_optical: RigidTransform) -> npt.NDArray[np.float64]:
 class _Target:
     """Framebuffer and readback buffers of one image size."""
 
-    def __init__(self, ctx: object, width: int, height: int) -> None:
-        c = ctx  # moderngl.Context (untyped library)
-        self.color = c.renderbuffer((width, height), 4, dtype="f1")  # type: ignore[attr-defined]
-        self.depth = c.renderbuffer((width, height), 1, dtype="f4")  # type: ignore[attr-defined]
-        self.inst = c.renderbuffer((width, height), 1, dtype="u4")  # type: ignore[attr-defined]
-        self.zbuf = c.depth_renderbuffer((width, height))  # type: ignore[attr-defined]
-        self.fbo = c.framebuffer([self.color, self.depth, self.inst], self.zbuf)  # type: ignore[attr-defined]
+    def __init__(self, ctx: Any, width: int, height: int) -> None:
+        self.color = ctx.renderbuffer((width, height), 4, dtype="f1")
+        self.depth = ctx.renderbuffer((width, height), 1, dtype="f4")
+        self.inst = ctx.renderbuffer((width, height), 1, dtype="u4")
+        self.zbuf = ctx.depth_renderbuffer((width, height))
+        self.fbo = ctx.framebuffer([self.color, self.depth, self.inst], self.zbuf)
         self.buf_color = np.empty((height, width, 3), np.uint8)
         self.buf_depth = np.empty((height, width), np.float32)
         self.buf_inst = np.empty((height, width), np.uint32)
@@ -141,12 +114,12 @@ class Renderer:
     def __init__(self, world: World, settings: RenderSettings | None = None) -> None:
         import moderngl  # noqa: PLC0415  (GL is optional for the pure core)
 
-        self._mgl = moderngl
+        self._mgl: Any = moderngl  # moderngl's stubs are partial; GL objects are handled as Any
         self.world = world
         self.settings = settings or RenderSettings()
         self._thread = threading.get_ident()
         try:
-            self.ctx = moderngl.create_context(standalone=True, backend="egl")
+            self.ctx: Any = self._mgl.create_context(standalone=True, backend="egl")
         except Exception as err:  # glcontext raises bare Exceptions
             msg = (
                 f"cannot create a headless EGL OpenGL context: {err}. Install libegl1 and libgl1 "
@@ -164,8 +137,8 @@ class Renderer:
     def _build_programs(self) -> None:
         ctx = self.ctx
         s = self.settings
-        self.prog = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=shaders.MAIN_FS)
-        self.sky = ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=shaders.SKY_FS)
+        self.prog: Any = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=shaders.MAIN_FS)
+        self.sky: Any = ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=shaders.SKY_FS)
         sun = s.sun_direction
         haze = (0.74, 0.80, 0.88)
         self.prog["u_sun"].value = sun
@@ -185,7 +158,7 @@ class Renderer:
         rec["p"], rec["n"], rec["c"], rec["i"] = verts, normals, colors, inst
         return rec.tobytes()
 
-    def _make_vao(self, vbo: object, ibo: object) -> object:
+    def _make_vao(self, vbo: Any, ibo: Any) -> Any:
         return self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 3f 1u", "in_pos", "in_nrm", "in_col", "in_inst")], ibo)
 
     def _upload_static(self) -> None:

@@ -1,0 +1,161 @@
+"""Configuration of the bridge node: ``config/sim_bridge.yaml`` (+ ROS parameter overrides).
+
+Loaded once at start-up into :class:`SimBridgeConfig` through
+:func:`uav_common.config.from_mapping` (strict: unknown keys are errors).  The node
+deep-merges the ``~overrides`` parameter and a few convenience parameters (``~world``,
+``~sim_host``...) over the file first, see :func:`merge_overrides`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from uav_sim_bridge.core.camera import CameraConfig, MountConfig
+from uav_sim_bridge.core.collision import CollisionConfig
+from uav_sim_bridge.core.detections import DetectionConfig
+from uav_sim_bridge.core.render_settings import RenderSettings
+from uav_sim_bridge.core.schedule import LockstepConfig
+from uav_sim_bridge.core.sensor_noise import NoiseConfig
+
+__all__ = [
+    "REPO_ROOT",
+    "GroundTruthDetectionsConfig",
+    "HomeConfig",
+    "PublishConfig",
+    "SimBridgeConfig",
+    "SimLinkConfig",
+    "default_cameras",
+    "merge_overrides",
+    "resolve_world_path",
+]
+
+# catkin_ws/src/uav_sim_bridge/src/uav_sim_bridge/config.py -> repository root
+REPO_ROOT = Path(__file__).resolve().parents[5]
+
+
+def default_cameras() -> dict[str, CameraConfig]:
+    """The architecture's default cameras: a nadir camera and a forward camera pitched 25 degrees down."""
+    return {
+        "nadir": CameraConfig(hfov_deg=90.0, rate_hz=10.0, mount=MountConfig((0.0, 0.0, -0.08), (0.0, 90.0, 0.0))),
+        "forward": CameraConfig(hfov_deg=90.0, rate_hz=10.0, mount=MountConfig((0.12, 0.0, -0.04), (0.0, 25.0, 0.0))),
+    }
+
+
+@dataclass(frozen=True)
+class SimLinkConfig:
+    """UDP simulation link to the SITL (docs/architecture.md)."""
+
+    host: str = "127.0.0.1"
+    port: int = 4560
+    local_port: int = 0
+    system_id: int = 1
+    component_id: int = 200
+    heartbeat_period_s: float = 1.0
+    terrain_report_rate_hz: float = 10.0
+    stale_warning_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not (0 < self.port < 65536 and 0 <= self.local_port < 65536):
+            msg = "port must be in 1..65535 and local_port in 0..65535"
+            raise ValueError(msg)
+        if self.heartbeat_period_s <= 0 or self.terrain_report_rate_hz < 10.0:
+            msg = "heartbeat_period_s must be > 0 and terrain_report_rate_hz >= 10 (contract)"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class HomeConfig:
+    """Geodetic home (the ``map`` origin). Leave ``home`` null to derive it from the sim link."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+
+
+@dataclass(frozen=True)
+class PublishConfig:
+    """What the node publishes besides the always-on pose, clock and state topics."""
+
+    only_when_subscribed: bool = True
+    class_image: bool = True
+    points: bool = True
+    points_stride: int = 1
+    world_mesh_marker: bool = True
+
+    def __post_init__(self) -> None:
+        if self.points_stride < 1:
+            msg = "points_stride must be >= 1"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class GroundTruthDetectionsConfig(DetectionConfig):
+    """``detections``: registration rules plus the cameras that produce detections."""
+
+    cameras: tuple[str, ...] = ("forward", "nadir")
+    topic: str = "/detections/ground_truth"
+
+
+@dataclass(frozen=True)
+class SimBridgeConfig:
+    """The whole node configuration (see docs/sim_bridge.md for every key)."""
+
+    world: str = "default"
+    worlds_dir: Path | None = None
+    world_cache_dir: Path | None = None
+    object_poses: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    cameras: dict[str, CameraConfig] = field(default_factory=default_cameras)
+    sim_link: SimLinkConfig = field(default_factory=SimLinkConfig)
+    lockstep: LockstepConfig = field(default_factory=LockstepConfig)
+    render: RenderSettings = field(default_factory=RenderSettings)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    detections: GroundTruthDetectionsConfig = field(default_factory=GroundTruthDetectionsConfig)
+    collision: CollisionConfig = field(default_factory=CollisionConfig)
+    publish: PublishConfig = field(default_factory=PublishConfig)
+    home: HomeConfig | None = None
+    map_frame: str = "map"
+    base_frame: str = "base_link"
+
+    def __post_init__(self) -> None:
+        for name in self.cameras:
+            if not name.isidentifier():
+                msg = f"camera name {name!r} must be a plain identifier (it becomes frame camera_{name})"
+                raise ValueError(msg)
+        unknown = [c for c in self.detections.cameras if c not in self.cameras]
+        if unknown:
+            msg = f"detections.cameras names unknown camera(s) {unknown}; cameras: {sorted(self.cameras)}"
+            raise ValueError(msg)
+
+    def world_yaml(self) -> Path:
+        return resolve_world_path(self.world, self.worlds_dir)
+
+    def cache_dir(self) -> Path:
+        return self.world_cache_dir or Path("~/.cache/uav_test_range/worlds").expanduser()
+
+
+def resolve_world_path(world: str, worlds_dir: Path | None = None) -> Path:
+    """A world name (``default`` -> ``config/worlds/default.yaml``) or a path to a YAML file.
+
+    A relative path that does not exist from the working directory (ROS nodes run in
+    ``~/.ros``) is taken relative to the repository root.
+    """
+    if world.endswith((".yaml", ".yml")) or "/" in world:
+        path = Path(world).expanduser()
+        if not path.is_absolute() and not path.exists() and (REPO_ROOT / path).exists():
+            return REPO_ROOT / path
+        return path
+    return (worlds_dir or REPO_ROOT / "config" / "worlds") / f"{world}.yaml"
+
+
+def merge_overrides(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep-merge ``overrides`` into ``base`` (mappings merge key by key, anything else replaces)."""
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge_overrides(out[key], value)
+        else:
+            out[key] = value
+    return out

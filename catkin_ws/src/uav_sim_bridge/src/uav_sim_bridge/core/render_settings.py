@@ -1,0 +1,36 @@
+"""Look and speed settings of the renderer (``render`` section of ``config/sim_bridge.yaml``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["RenderSettings"]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Look and speed knobs of the renderer (``render`` section of ``config/sim_bridge.yaml``)."""
+
+    tile_size_m: float = 50.0
+    lod_distance_m: float = 160.0
+    texture_gain: float = 0.9
+    haze_distance_m: float = 1800.0
+    sun_azimuth_deg: float = 135.0
+    sun_elevation_deg: float = 55.0
+    pad_half_size_m: float = 7.0
+    frustum_culling: bool = True
+
+    def __post_init__(self) -> None:
+        if self.tile_size_m <= 0 or self.lod_distance_m < 0 or self.haze_distance_m <= 0:
+            msg = "tile_size_m and haze_distance_m must be > 0 and lod_distance_m >= 0"
+            raise ValueError(msg)
+        if not 0 < self.sun_elevation_deg <= 90:
+            msg = "sun_elevation_deg must be in (0, 90]"
+            raise ValueError(msg)
+
+    @property
+    def sun_direction(self) -> tuple[float, float, float]:
+        """Unit vector towards the sun in ``map`` (azimuth clockwise from north)."""
+        az, el = math.radians(self.sun_azimuth_deg), math.radians(self.sun_elevation_deg)
+        return (math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el))

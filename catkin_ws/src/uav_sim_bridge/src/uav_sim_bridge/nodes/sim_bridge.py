@@ -1,0 +1,496 @@
+"""sim_bridge node: SITL ground truth -> rendered cameras, tf, odometry and detections in simulation time.
+
+ROS interface (names are defaults; remap as usual):
+
+Publishes:
+    /clock (rosgraph_msgs/Clock): simulation time of every ground-truth state.
+    /tf: map -> base_link (ground truth, or with seeded pose noise if ``noise.enabled``).
+    /tf_static: base_link -> camera_<cam> (mount) -> camera_<cam>_optical.
+    /uav/ground_truth/odom (nav_msgs/Odometry): exact pose in map, twist in base_link.
+    /uav/sim_state (uav_msgs/SimState): armed, crashed, lockstep, motors, real-time factor;
+        published last for each state, so a lockstep master can wait for it.
+    /cameras/<cam>/color/image_raw (sensor_msgs/Image rgb8), .../color/camera_info
+    /cameras/<cam>/depth/image_raw (Image 32FC1, metres z-depth, NaN = no return), .../depth/camera_info
+    /cameras/<cam>/instance/image_raw (Image 16UC1, world instance id, 0 = sky)
+    /cameras/<cam>/class/image_color (Image rgb8, class colors for people)
+    /cameras/<cam>/points (sensor_msgs/PointCloud2 x y z rgb, frame camera_<cam>_optical, finite points)
+    /detections/ground_truth (uav_msgs/DetectionArray): people and vehicles per detection camera frame.
+    /sim/collision (uav_msgs/Collision): the vehicle touched an object (also sent to the SITL).
+    /sim/world_mesh (visualization_msgs/Marker, latched): the world mesh for rviz.
+
+Services:
+    ~set_object_pose (uav_msgs/SetObjectPose): move a person or vehicle.
+
+Parameters:
+    ~config_file (str, default <repo>/config/sim_bridge.yaml): node configuration.
+    ~overrides (dict, default {}): deep-merged over the file (e.g. from a scenario).
+    ~world, ~world_cache_dir, ~sim_host, ~sim_port, ~local_port, ~lockstep_role (str/int, "" = from file).
+    ~cameras (str, "" = all): comma-separated subset of the configured cameras to run.
+    Sets ~world_hash, ~world_name and ~world_dir (cache folder with objects.json and world.ply).
+
+Threading: every GL call and all publishing of sensor data happen in the main loop's
+thread; the service callback only queues a request and waits for the loop to apply it.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rospy
+import tf2_ros
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker
+
+from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
+from uav_common.geo import GeoPoint
+from uav_msgs.msg import Collision, DetectionArray, SimState
+from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
+from uav_sim_bridge.config import REPO_ROOT, SimBridgeConfig, merge_overrides
+from uav_sim_bridge.core import visualize
+from uav_sim_bridge.core.camera import depth_to_points
+from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
+from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
+from uav_sim_bridge.core.world import World, cache_slot, load_or_generate
+from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.engine import BridgeEngine, CameraOutput, StepOutput
+from uav_sim_bridge.errors import SimBridgeError
+from uav_sim_bridge.render import Renderer
+from uav_sim_bridge.ros import conversions as conv
+from uav_sim_bridge.ros.pointcloud2 import xyzrgb_to_pointcloud2
+from uav_sim_bridge.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
+
+__all__ = ["SimBridgeNode", "load_node_config", "main"]
+
+_ACCEPTED = 0
+_SIMPLE_PARAMS = {
+    "world": ("world",),
+    "world_cache_dir": ("world_cache_dir",),
+    "sim_host": ("sim_link", "host"),
+    "sim_port": ("sim_link", "port"),
+    "local_port": ("sim_link", "local_port"),
+    "lockstep_role": ("lockstep", "role"),
+}
+
+
+def load_node_config() -> SimBridgeConfig:
+    """File + ``~overrides`` + convenience parameters -> :class:`SimBridgeConfig`.
+
+    Raises:
+        ConfigError: missing file, bad YAML, unknown key, bad value.
+    """
+    path = Path(str(rospy.get_param("~config_file", str(REPO_ROOT / "config" / "sim_bridge.yaml"))))
+    data: dict[str, Any] = load_yaml_mapping(path)
+    overrides = rospy.get_param("~overrides", {})
+    if not isinstance(overrides, dict):
+        msg = f"~overrides must be a mapping, got {type(overrides).__name__}"
+        raise ConfigError(msg)
+    data = merge_overrides(data, overrides)
+    for name, keys in _SIMPLE_PARAMS.items():
+        value = rospy.get_param("~" + name, "")
+        if value in ("", None):
+            continue
+        if keys in {("sim_link", "port"), ("sim_link", "local_port")}:
+            value = int(value)
+        data = merge_overrides(data, _nested(keys, value))
+    wanted = str(rospy.get_param("~cameras", "")).strip()
+    if wanted:
+        names = [n.strip() for n in wanted.split(",") if n.strip()]
+        cams = data.get("cameras", {})
+        missing = [n for n in names if n not in cams]
+        if missing:
+            msg = f"~cameras names unknown camera(s) {missing}; configured: {sorted(cams)}"
+            raise ConfigError(msg)
+        data["cameras"] = {n: cams[n] for n in names}
+        det = dict(data.get("detections", {}))
+        det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
+        data["detections"] = det
+    return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
+
+
+def _nested(keys: tuple[str, ...], value: Any) -> dict[str, Any]:
+    out: Any = value
+    for k in reversed(keys):
+        out = {k: out}
+    return dict(out)
+
+
+@dataclass
+class _CameraPubs:
+    color: rospy.Publisher
+    color_info: rospy.Publisher
+    depth: rospy.Publisher
+    depth_info: rospy.Publisher
+    instance: rospy.Publisher
+    klass: rospy.Publisher
+    points: rospy.Publisher
+
+    def all(self) -> list[rospy.Publisher]:
+        return [self.color, self.color_info, self.depth, self.depth_info, self.instance, self.klass, self.points]
+
+
+@dataclass
+class _MoveRequest:
+    req: SetObjectPoseRequest
+    done: threading.Event
+    response: SetObjectPoseResponse | None = None
+
+
+class SimBridgeNode:
+    """The node (see module docstring). Create and spin it in the same thread."""
+
+    def __init__(self, cfg: SimBridgeConfig) -> None:
+        self.cfg = cfg
+        t0 = time.monotonic()
+        world_cfg = load_world_config(cfg.world_yaml())
+        self.world: World = load_or_generate(world_cfg, cfg.cache_dir())
+        self.world_dir = cache_slot(world_cfg, cfg.cache_dir())
+        rospy.loginfo(
+            "world %s (%s...): %d objects, %d triangles, ready in %.1f s",
+            world_cfg.name,
+            self.world.hash[:12],
+            len(self.world.objects),
+            len(self.world.mesh.faces),
+            time.monotonic() - t0,
+        )
+        self.renderer = Renderer(self.world, cfg.render)
+        rospy.loginfo("renderer: %s", self.renderer.gl_renderer)
+        self.engine = BridgeEngine(cfg, self.world, self.renderer)
+        self.counters = LinkCounters()
+        sl = cfg.sim_link
+        self.link = SimLinkClient(
+            sl.host,
+            sl.port,
+            local_port=sl.local_port,
+            system_id=sl.system_id,
+            component_id=sl.component_id,
+            counters=self.counters,
+        )
+        self.tracker = SimLinkTracker(sitl_system_id=1, counters=self.counters)
+        rospy.loginfo("sim link: local UDP %d -> %s:%d", self.link.local_port, sl.host, sl.port)
+        self._make_publishers()
+        self._publish_static()
+        self._requests: queue.Queue[_MoveRequest] = queue.Queue()
+        self._service = rospy.Service("~set_object_pose", SetObjectPose, self._on_set_object_pose)
+        rospy.set_param("~world_hash", self.world.hash)
+        rospy.set_param("~world_name", world_cfg.name)
+        rospy.set_param("~world_dir", str(self.world_dir))
+        self._processed_serial = 0
+        self._terrain_schedule = RateSchedule(sl.terrain_report_rate_hz)
+        self._last_heartbeat = -math.inf
+        self._last_state_wall = time.monotonic()
+        self._rtf = 0.0
+        self._rtf_ref: tuple[float, float] | None = None
+        # lockstep master bookkeeping
+        self._awaiting_ack = False
+        self._grant_sent_at = 0.0
+        self._lockstep_denied = False
+        self._lockstep_confirmed = False
+        self._wall_start: float | None = None
+        self._sim_start: float | None = None
+        self.grants = 0
+        self.frames = 0
+        self._last_bad = 0
+
+    # ------------------------------------------------------------------ setup
+    def _make_publishers(self) -> None:
+        self.pub_clock = rospy.Publisher("/clock", Clock, queue_size=10)
+        self.pub_odom = rospy.Publisher("/uav/ground_truth/odom", Odometry, queue_size=10)
+        self.pub_state = rospy.Publisher("/uav/sim_state", SimState, queue_size=10)
+        self.pub_det = rospy.Publisher(self.cfg.detections.topic, DetectionArray, queue_size=10)
+        self.pub_collision = rospy.Publisher("/sim/collision", Collision, queue_size=10, latch=True)
+        self.tf = tf2_ros.TransformBroadcaster()
+        self.tf_static = tf2_ros.StaticTransformBroadcaster()
+        self.cam_pubs: dict[str, _CameraPubs] = {}
+        for name in self.engine.cameras:
+            ns = f"/cameras/{name}"
+            self.cam_pubs[name] = _CameraPubs(
+                color=rospy.Publisher(f"{ns}/color/image_raw", Image, queue_size=2),
+                color_info=rospy.Publisher(f"{ns}/color/camera_info", CameraInfo, queue_size=2),
+                depth=rospy.Publisher(f"{ns}/depth/image_raw", Image, queue_size=2),
+                depth_info=rospy.Publisher(f"{ns}/depth/camera_info", CameraInfo, queue_size=2),
+                instance=rospy.Publisher(f"{ns}/instance/image_raw", Image, queue_size=2),
+                klass=rospy.Publisher(f"{ns}/class/image_color", Image, queue_size=2),
+                points=rospy.Publisher(f"{ns}/points", PointCloud2, queue_size=2),
+            )
+        if self.cfg.publish.world_mesh_marker:
+            self.pub_mesh = rospy.Publisher("/sim/world_mesh", Marker, queue_size=1, latch=True)
+            self._publish_mesh_marker()
+
+    def _publish_static(self) -> None:
+        cfg = self.cfg
+        msgs = []
+        for cam in self.engine.cameras.values():
+            msgs.append(conv.transform_stamped(0.0, cfg.base_frame, cam.frame_id, cam.t_base_camera))
+            optical = RigidTransform(OPTICAL_FROM_FLU, np.zeros(3))
+            msgs.append(conv.transform_stamped(0.0, cam.frame_id, cam.optical_frame_id, optical))
+        self.tf_static.sendTransform(msgs)
+
+    def _publish_mesh_marker(self) -> None:
+        ply = self.world_dir / "world.ply"
+        try:
+            if not ply.is_file():
+                self.world.export_mesh(ply)
+            objects = self.world_dir / "objects.json"
+            if not objects.is_file():
+                self.world.export_objects_json(objects)
+        except SimBridgeError as err:
+            rospy.logwarn("cannot export the world mesh for rviz: %s", err)
+            return
+        m = Marker(header=conv.header(0.0, self.cfg.map_frame), ns="world", id=0, type=Marker.MESH_RESOURCE)
+        m.action = Marker.ADD
+        m.pose.orientation.w = 1.0
+        m.scale.x = m.scale.y = m.scale.z = 1.0
+        m.color = ColorRGBA(0.0, 0.0, 0.0, 0.0)  # use the mesh's vertex colors
+        m.mesh_resource = f"file://{ply}"
+        m.mesh_use_embedded_materials = True
+        self.pub_mesh.publish(m)
+
+    # ------------------------------------------------------------------ service (any thread)
+    def _on_set_object_pose(self, req: SetObjectPoseRequest) -> SetObjectPoseResponse:
+        item = _MoveRequest(req, threading.Event())
+        self._requests.put(item)
+        if not item.done.wait(5.0) or item.response is None:
+            return SetObjectPoseResponse(success=False, message="the bridge loop did not answer within 5 s")
+        return item.response
+
+    def _drain_requests(self) -> None:
+        while True:
+            try:
+                item = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            r = item.req
+            key: str | int = int(r.instance_id) if r.instance_id else str(r.name)
+            try:
+                obj = self.engine.move_object(key, r.position.x, r.position.y, r.position.z, r.yaw_rad)
+                item.response = SetObjectPoseResponse(
+                    success=True, message=f"moved {obj.name} to {obj.pose.position_m}", instance_id=obj.instance_id
+                )
+            except (KeyError, ValueError) as err:
+                item.response = SetObjectPoseResponse(success=False, message=str(err).strip("'\""))
+            item.done.set()
+
+    # ------------------------------------------------------------------ main loop
+    def spin(self) -> None:
+        role = self.cfg.lockstep.role
+        rospy.loginfo("lockstep role: %s", role)
+        while not rospy.is_shutdown():
+            msgs = self.link.receive(0.02)
+            for m in msgs:
+                self.tracker.update(m)
+            self._drain_requests()
+            now = time.monotonic()
+            if now - self._last_heartbeat >= self.cfg.sim_link.heartbeat_period_s:
+                self.link.send_heartbeat()
+                self._last_heartbeat = now
+            snap = self.tracker.snapshot
+            if snap.state_serial != self._processed_serial and snap.state is not None:
+                self._processed_serial = snap.state_serial
+                self._process(now)
+            acks, snap.acks = snap.acks, []
+            for command, result in acks:
+                if command == SIM_STEP:
+                    self._on_grant_ack(result)
+            if role == LockstepRole.MASTER and not self._lockstep_denied:
+                self._maybe_grant(now)
+            self._warn_if_unwell(now)
+        rospy.loginfo(
+            "sim link: rx %d datagrams (%d bad, %d foreign, %d invalid states), tx %d (%d errors); "
+            "%d frames, %d grants",
+            self.counters.rx_datagrams,
+            self.counters.rx_bad,
+            self.counters.rx_foreign,
+            self.counters.rx_invalid_state,
+            self.counters.tx_messages,
+            self.counters.tx_errors,
+            self.frames,
+            self.grants,
+        )
+
+    def _on_grant_ack(self, result: int) -> None:
+        self._awaiting_ack = False
+        if result == _ACCEPTED:
+            if not self._lockstep_confirmed:
+                rospy.loginfo("lockstep: the SITL accepted our SIM_STEP grants; the bridge is the step master")
+            self._lockstep_confirmed = True
+        else:
+            self._lockstep_denied = True
+            rospy.logwarn("lockstep: SIM_STEP refused (result %d): the SITL runs free; not granting any more", result)
+
+    def _maybe_grant(self, now: float) -> None:
+        snap = self.tracker.snapshot
+        if snap.heartbeats == 0 and snap.state is None:
+            return  # nothing heard from the SITL yet
+        lk = self.cfg.lockstep
+        if self._awaiting_ack:
+            if now - self._grant_sent_at > lk.grant_timeout_s:
+                rospy.logwarn_throttle(
+                    5.0, "lockstep: no COMMAND_ACK for SIM_STEP within %.1f s; granting again", lk.grant_timeout_s
+                )
+                self._send_grant(now)
+            return
+        if lk.max_real_time_factor > 0 and snap.state is not None:
+            if self._wall_start is None or self._sim_start is None:
+                self._wall_start, self._sim_start = now, snap.state.sim_time_s
+            earliest = self._wall_start + (snap.state.sim_time_s - self._sim_start) / lk.max_real_time_factor
+            if now < earliest:
+                return
+        if snap.state is not None:
+            report = self.engine.terrain_report(snap.state, self._home())
+            if report is not None:
+                self.link.send_terrain_report(
+                    report.lat_deg, report.lon_deg, report.terrain_amsl_m, report.above_terrain_m
+                )
+        self._send_grant(now)
+
+    def _send_grant(self, now: float) -> None:
+        self.link.send_sim_step(self.cfg.lockstep.steps_per_grant)
+        self._awaiting_ack = True
+        self._grant_sent_at = now
+        self.grants += 1
+
+    def _home(self) -> GeoPoint | None:
+        h = self.cfg.home
+        if h is not None:
+            return GeoPoint(h.lat_deg, h.lon_deg, h.alt_amsl_m)
+        return self.tracker.snapshot.home
+
+    def _wanted(self, name: str) -> bool:
+        if not self.cfg.publish.only_when_subscribed:
+            return True
+        return any(p.get_num_connections() > 0 for p in self.cam_pubs[name].all())
+
+    def _process(self, now: float) -> None:
+        snap = self.tracker.snapshot
+        state = snap.state
+        assert state is not None
+        t = state.sim_time_s
+        self._update_rtf(now, t)
+        self._last_state_wall = now
+        self.pub_clock.publish(conv.clock(t))
+        want_det = self.pub_det.get_num_connections() > 0 or not self.cfg.publish.only_when_subscribed
+        out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
+        cfg = self.cfg
+        self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
+        self.pub_odom.publish(conv.odometry(state, cfg.map_frame, cfg.base_frame))
+        for cam_out in out.cameras:
+            self._publish_camera(t, cam_out)
+        self._publish_contacts(out)
+        if out.terrain is not None:
+            participant = cfg.lockstep.role == LockstepRole.PARTICIPANT
+            if participant or (not self._lockstep_confirmed and self._terrain_schedule.due(t)):
+                r = out.terrain
+                self.link.send_terrain_report(r.lat_deg, r.lon_deg, r.terrain_amsl_m, r.above_terrain_m)
+        self.pub_state.publish(
+            conv.sim_state(
+                t,
+                cfg.map_frame,
+                rtf=self._rtf,
+                armed=snap.armed,
+                crashed=snap.crashed,
+                lockstep=snap.lockstep,
+                motors=snap.motor_outputs,
+            )
+        )
+
+    def _publish_camera(self, t: float, out: CameraOutput) -> None:
+        pubs = self.cam_pubs[out.camera.name]
+        hdr = conv.header(t, out.camera.optical_frame_id)
+        info = conv.camera_info(out.camera, hdr)
+        frame = out.frame
+        every = not self.cfg.publish.only_when_subscribed
+
+        def on(p: rospy.Publisher) -> bool:
+            return every or p.get_num_connections() > 0
+
+        if on(pubs.color):
+            pubs.color.publish(conv.numpy_to_image(frame.color_rgb, "rgb8", hdr))
+        if on(pubs.color_info):
+            pubs.color_info.publish(info)
+        if on(pubs.depth):
+            pubs.depth.publish(conv.numpy_to_image(out.depth_m, "32FC1", hdr))
+        if on(pubs.depth_info):
+            pubs.depth_info.publish(info)
+        if on(pubs.instance):
+            pubs.instance.publish(conv.numpy_to_image(frame.instance_id, "16UC1", hdr))
+        if self.cfg.publish.class_image and on(pubs.klass):
+            rgb = visualize.class_image(frame.instance_id, self.world.instance_class)
+            pubs.klass.publish(conv.numpy_to_image(rgb, "rgb8", hdr))
+        if self.cfg.publish.points and on(pubs.points):
+            s = self.cfg.publish.points_stride
+            pts = depth_to_points(out.depth_m, out.camera.k)[::s, ::s]
+            ok = np.isfinite(pts[..., 2])
+            pubs.points.publish(xyzrgb_to_pointcloud2(hdr, pts[ok], frame.color_rgb[::s, ::s][ok]))
+        if out.detections is not None:
+            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
+        self.frames += 1
+
+    def _publish_contacts(self, out: StepOutput) -> None:
+        speed = float(np.linalg.norm(out.state.velocity_body_mps))
+        for c in out.new_contacts:
+            obj = self.engine.lookup(c.instance_id)
+            rospy.logwarn(
+                "collision with %s (%s, id %d) at %.1f m/s", obj.name, c.object_class.label, c.instance_id, speed
+            )
+            self.link.send_collision(c.instance_id)
+            self.pub_collision.publish(
+                conv.collision_msg(
+                    out.state.sim_time_s,
+                    self.cfg.map_frame,
+                    instance_id=c.instance_id,
+                    class_name=c.object_class.label,
+                    point_m=c.point_m,
+                    speed_mps=speed,
+                )
+            )
+
+    def _update_rtf(self, now: float, sim_t: float) -> None:
+        if self._rtf_ref is None or sim_t < self._rtf_ref[1]:
+            self._rtf_ref = (now, sim_t)
+            return
+        dw = now - self._rtf_ref[0]
+        if dw >= 1.0:
+            self._rtf = float((sim_t - self._rtf_ref[1]) / dw)
+            self._rtf_ref = (now, sim_t)
+
+    def _warn_if_unwell(self, now: float) -> None:
+        if now - self._last_state_wall > self.cfg.sim_link.stale_warning_s:
+            rospy.logwarn_throttle(
+                10.0,
+                "no ground truth from the SITL at %s:%d for %.0f s (is uav-sitl running with its sim link?)",
+                self.cfg.sim_link.host,
+                self.cfg.sim_link.port,
+                now - self._last_state_wall,
+            )
+        if self.counters.rx_bad > self._last_bad:
+            rospy.logwarn_throttle(10.0, "sim link: %d malformed datagrams dropped so far", self.counters.rx_bad)
+            self._last_bad = self.counters.rx_bad
+
+    def close(self) -> None:
+        self.link.close()
+        self.renderer.close()
+
+
+def main() -> None:
+    rospy.init_node("sim_bridge")
+    try:
+        cfg = load_node_config()
+        node = SimBridgeNode(cfg)
+    except (ConfigError, SimBridgeError) as err:
+        rospy.logfatal("sim_bridge cannot start: %s", err)
+        sys.exit(1)
+    try:
+        node.spin()
+    finally:
+        node.close()

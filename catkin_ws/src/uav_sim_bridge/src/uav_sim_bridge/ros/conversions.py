@@ -1,0 +1,192 @@
+"""numpy / core types -> ROS messages for the bridge (and the inverse where tests need it)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import rospy
+from geometry_msgs.msg import Point, Quaternion, TransformStamped, Vector3
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+from uav_common.frames import wxyz_to_ros_xyzw
+from uav_msgs.msg import Collision, Detection, DetectionArray, SimState
+from uav_sim_bridge.core.camera import CameraModel
+from uav_sim_bridge.core.detections import GroundTruthDetection
+from uav_sim_bridge.core.transforms import RigidTransform
+from uav_sim_bridge.core.vehicle_state import VehicleState
+
+__all__ = [
+    "camera_info",
+    "clock",
+    "collision_msg",
+    "detection_array",
+    "header",
+    "image_to_numpy",
+    "numpy_to_image",
+    "odometry",
+    "quaternion",
+    "sim_state",
+    "stamp",
+    "transform_stamped",
+]
+
+_ENCODINGS: dict[str, tuple[str, int]] = {
+    "rgb8": ("u1", 3),
+    "32FC1": ("<f4", 1),
+    "16UC1": ("<u2", 1),
+    "mono8": ("u1", 1),
+}
+
+
+def stamp(sim_time_s: float) -> rospy.Time:
+    return rospy.Time.from_sec(max(0.0, sim_time_s))
+
+
+def header(sim_time_s: float, frame_id: str) -> Header:
+    return Header(stamp=stamp(sim_time_s), frame_id=frame_id)
+
+
+def quaternion(t: RigidTransform) -> Quaternion:
+    x, y, z, w = wxyz_to_ros_xyzw(t.quat_wxyz)
+    return Quaternion(x=x, y=y, z=z, w=w)
+
+
+def clock(sim_time_s: float) -> Clock:
+    return Clock(clock=stamp(sim_time_s))
+
+
+def transform_stamped(sim_time_s: float, parent: str, child: str, t_parent_child: RigidTransform) -> TransformStamped:
+    msg = TransformStamped()
+    msg.header = header(sim_time_s, parent)
+    msg.child_frame_id = child
+    tx, ty, tz = (float(v) for v in t_parent_child.translation_m)
+    msg.transform.translation = Vector3(x=tx, y=ty, z=tz)
+    msg.transform.rotation = quaternion(t_parent_child)
+    return msg
+
+
+def odometry(state: VehicleState, frame_id: str, child_frame_id: str) -> Odometry:
+    """Pose in ``frame_id``, twist in ``child_frame_id`` (REP 105)."""
+    msg = Odometry()
+    msg.header = header(state.sim_time_s, frame_id)
+    msg.child_frame_id = child_frame_id
+    px, py, pz = (float(v) for v in state.position_m)
+    msg.pose.pose.position = Point(x=px, y=py, z=pz)
+    msg.pose.pose.orientation = quaternion(state.t_map_base)
+    vx, vy, vz = (float(v) for v in state.velocity_body_mps)
+    wx, wy, wz = (float(v) for v in state.angular_velocity_body_radps)
+    msg.twist.twist.linear = Vector3(x=vx, y=vy, z=vz)
+    msg.twist.twist.angular = Vector3(x=wx, y=wy, z=wz)
+    return msg
+
+
+def numpy_to_image(array: npt.NDArray[Any], encoding: str, hdr: Header) -> Image:
+    """An ``(H, W[, C])`` array as ``sensor_msgs/Image`` (little endian)."""
+    if encoding not in _ENCODINGS:
+        msg = f"unsupported encoding {encoding!r}"
+        raise ValueError(msg)
+    dtype, channels = _ENCODINGS[encoding]
+    arr = np.ascontiguousarray(array, dtype=np.dtype(dtype))
+    h, w = arr.shape[:2]
+    if (arr.ndim == 3 and arr.shape[2] != channels) or (arr.ndim == 2 and channels != 1):
+        msg = f"array of shape {arr.shape} does not fit encoding {encoding}"
+        raise ValueError(msg)
+    return Image(
+        header=hdr,
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=w * channels * arr.dtype.itemsize,
+        data=arr.tobytes(),
+    )
+
+
+def image_to_numpy(msg: Image) -> npt.NDArray[Any]:
+    """Inverse of :func:`numpy_to_image` for the encodings the bridge publishes."""
+    if msg.encoding not in _ENCODINGS:
+        err = f"unsupported encoding {msg.encoding!r}"
+        raise ValueError(err)
+    dtype, channels = _ENCODINGS[msg.encoding]
+    dt = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
+    row = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(msg.height, msg.step)
+    px = row[:, : msg.width * channels * dt.itemsize].copy().view(dt)
+    shape = (msg.height, msg.width, channels) if channels > 1 else (msg.height, msg.width)
+    return px.reshape(shape).astype(dt.newbyteorder("="))
+
+
+def camera_info(camera: CameraModel, hdr: Header) -> CameraInfo:
+    """Ideal pinhole (no distortion), ``P = [K | 0]``."""
+    k = camera.k
+    msg = CameraInfo(header=hdr, height=camera.height, width=camera.width, distortion_model="plumb_bob")
+    msg.D = [0.0] * 5
+    msg.K = [float(v) for v in k.ravel()]
+    msg.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    msg.P = [float(k[0, 0]), 0.0, float(k[0, 2]), 0.0, 0.0, float(k[1, 1]), float(k[1, 2]), 0.0, 0.0, 0.0, 1.0, 0.0]
+    return msg
+
+
+def detection_array(hdr: Header, camera: str, dets: list[GroundTruthDetection]) -> DetectionArray:
+    out = DetectionArray(header=hdr, camera=camera, source="ground_truth")
+    for d in dets:
+        x, y, z = d.position_m
+        out.detections.append(
+            Detection(
+                instance_id=d.instance_id,
+                class_name=d.object_class.label,
+                score=1.0,
+                x_min=d.x_min,
+                y_min=d.y_min,
+                x_max=d.x_max,
+                y_max=d.y_max,
+                range_m=d.range_m,
+                visible_fraction=d.visible_fraction,
+                position=Point(x=x, y=y, z=z),
+            )
+        )
+    return out
+
+
+def sim_state(
+    sim_time_s: float,
+    frame_id: str,
+    *,
+    rtf: float,
+    armed: bool,
+    crashed: bool,
+    lockstep: bool,
+    motors: tuple[float, ...],
+) -> SimState:
+    return SimState(
+        header=header(sim_time_s, frame_id),
+        sim_time_s=sim_time_s,
+        real_time_factor=rtf,
+        armed=armed,
+        crashed=crashed,
+        lockstep=lockstep,
+        motor_outputs=list(motors),
+    )
+
+
+def collision_msg(
+    sim_time_s: float,
+    frame_id: str,
+    *,
+    instance_id: int,
+    class_name: str,
+    point_m: tuple[float, float, float],
+    speed_mps: float,
+) -> Collision:
+    x, y, z = point_m
+    return Collision(
+        header=header(sim_time_s, frame_id),
+        instance_id=instance_id,
+        class_name=class_name,
+        position=Point(x=x, y=y, z=z),
+        speed_mps=speed_mps,
+    )
