@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import re
+import shutil
 import subprocess
 import threading
 import time
@@ -90,6 +91,7 @@ def test_sitl_router_mavsdk_mavproxy_pymavlink(artifacts: Path) -> None:
     ports = {"sitl": sitl_port, "gcs": free_udp_port(), "controller": free_udp_port(), "mavsdk": free_udp_port()}
     ports["adhoc"] = free_udp_port()
     log_dir = artifacts / "router_logs"
+    shutil.rmtree(log_dir, ignore_errors=True)  # artifacts/ outlives test runs
     conf = artifacts / "router.conf"
     conf.write_text(shipped_config_with_ports(ports, server_port, log_dir))
     conf_dir = artifacts / "conf.d"
