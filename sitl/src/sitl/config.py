@@ -76,7 +76,7 @@ class PhysicsConfig:
 
     rate_hz: float = 250.0
     aircraft: str = "F450"
-    aircraft_root: Path | None = None
+    aircraft_dir: Path | None = None
     outer_loop_divider: int = 5
     motor_max_voltage_v: float = 14.63
     thrust_curve_exponent: float = 1.68
@@ -390,7 +390,7 @@ _PATH_KEYS = (
     ("links", "gcs", "signing_key_file"),
     ("links", "api", "signing_key_file"),
     ("links", "tcp", "signing_key_file"),
-    ("physics", "aircraft_root"),
+    ("physics", "aircraft_dir"),
 )
 
 

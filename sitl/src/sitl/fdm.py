@@ -12,6 +12,8 @@ the autopilot's mixer alone drives the four motors.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import io
 import math
 import os
 import sys
@@ -29,6 +31,8 @@ __all__ = ["FT_TO_M", "JsbsimQuad", "MotorReading"]
 FT_TO_M = 0.3048
 LBF_TO_N = 4.4482216152605
 FTLBF_TO_NM = 1.3558179483314
+
+BUNDLED_AIRCRAFT = Path(__file__).resolve().parent / "aircraft"
 
 # F450 engine order = PX4 quad-X motor order: front right, aft left, front left, aft right.
 _ESC_INPUTS = ("fcs/cmdFR_ext_nd", "fcs/cmdAL_ext_nd", "fcs/cmdFL_ext_nd", "fcs/cmdAR_ext_nd")
@@ -49,6 +53,12 @@ class MotorReading:
         return self.applied_voltage_v * self.current_a
 
 
+def _flush_c_stdio() -> None:
+    """Flush C stdio buffers (JSBSim writes through them) before fds are swapped back."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).fflush(None)
+
+
 @contextlib.contextmanager
 def _quiet_stdio() -> Iterator[None]:
     """Silence JSBSim's banner and loader chatter on the C-level stdout/stderr."""
@@ -60,11 +70,14 @@ def _quiet_stdio() -> Iterator[None]:
         yield
         return
     devnull = os.open(os.devnull, os.O_WRONLY)
+    sink = io.StringIO()  # the jsbsim module may route C++ std::cout into Python's sys.stdout
     try:
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        yield
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            yield
     finally:
+        _flush_c_stdio()
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
         for fd in (*saved, devnull):
@@ -82,8 +95,10 @@ class JsbsimQuad:
         yaw_rad: initial heading.
         motor_max_voltage_v: the JSBSim motor's ``maxvolts`` (its throttle is
             ``applied volts / maxvolts``).
-        root: JSBSim data root (aircraft/, engine/, systems/); default: the
-            one shipped in the ``jsbsim`` package.
+        aircraft_dir: folder holding aircraft folders; default: ``sitl/aircraft``
+            (the F450 with extra structural contacts), then the ``jsbsim``
+            package's own aircraft. Engines and systems always come from the
+            ``jsbsim`` package.
     """
 
     def __init__(
@@ -96,40 +111,31 @@ class JsbsimQuad:
         ground_alt_amsl_m: float,
         yaw_rad: float,
         motor_max_voltage_v: float,
-        root: Path | None = None,
+        aircraft_dir: Path | None = None,
     ) -> None:
-        data_root = str(root) if root is not None else str(jsbsim.get_default_root_dir())
+        data_root = str(jsbsim.get_default_root_dir())
+        folder = aircraft_dir if aircraft_dir is not None else BUNDLED_AIRCRAFT
+        if not (folder / aircraft).is_dir():
+            folder = Path(data_root) / "aircraft"
+        if not (folder / aircraft / f"{aircraft}.xml").is_file():
+            msg = f"no JSBSim aircraft {aircraft!r} in {folder}"
+            raise FdmError(msg)
         with _quiet_stdio():
             fdm = jsbsim.FGFDMExec(data_root)
             fdm.set_debug_level(0)
+            fdm.set_aircraft_path(str(folder))
             loaded = fdm.load_model(aircraft)
         if not loaded:
-            msg = f"JSBSim could not load aircraft {aircraft!r} from {data_root}"
+            msg = f"JSBSim could not load aircraft {aircraft!r} from {folder}"
             raise FdmError(msg)
         self._fdm = fdm
         self.dt_s = dt_s
         self.motor_max_voltage_v = motor_max_voltage_v
         fdm.set_dt(dt_s)
         fdm["simulation/randomseed"] = 0
-        # CG height above the contact points when resting (gear z is in structural inches, z up).
-        gear_z_in = [fdm[f"gear/unit[{i}]/z-position"] for i in range(int(fdm["gear/num-units"]))]
-        self.ground_clearance_m = -min(gear_z_in) * 0.0254
+        self.ground_clearance_m = _ground_clearance_m(fdm, aircraft)
         self._terrain_amsl_m = ground_alt_amsl_m
-        fdm["ic/lat-geod-deg"] = lat_deg
-        fdm["ic/long-gc-deg"] = lon_deg
-        fdm["ic/terrain-elevation-ft"] = ground_alt_amsl_m / FT_TO_M
-        fdm["ic/h-agl-ft"] = self.ground_clearance_m / FT_TO_M
-        fdm["ic/psi-true-deg"] = math.degrees(yaw_rad)
-        for name in ("ic/u-fps", "ic/v-fps", "ic/w-fps", "ic/p-rad_sec", "ic/q-rad_sec", "ic/r-rad_sec"):
-            fdm[name] = 0.0
-        with _quiet_stdio():
-            if not fdm.run_ic():
-                msg = "JSBSim run_ic() failed"
-                raise FdmError(msg)
-        fdm["fcs/ScasEngage"] = 0.0
-        fdm["fcs/throttle-cmd-norm"] = 0.0
-        for i in range(4):
-            fdm[f"propulsion/engine[{i}]/set-running"] = 1
+        _set_initial_conditions(fdm, lat_deg, lon_deg, ground_alt_amsl_m, self.ground_clearance_m, yaw_rad)
         pm = fdm.get_property_manager()
         self._esc = []
         for name in _ESC_INPUTS:
@@ -266,6 +272,39 @@ class JsbsimQuad:
     @property
     def on_ground(self) -> bool:
         return bool(self._fdm["gear/wow"])
+
+
+def _ground_clearance_m(fdm: jsbsim.FGFDMExec, aircraft: str) -> float:
+    """CG height above the landing-gear contacts (gear z is in structural inches, z up)."""
+    gear_z_in = []
+    for i in range(int(fdm["gear/num-units"])):
+        with contextlib.suppress(KeyError):  # structure contacts have no gear properties
+            gear_z_in.append(fdm[f"gear/unit[{i}]/z-position"])
+    if not gear_z_in:
+        msg = f"aircraft {aircraft!r} has no landing gear"
+        raise FdmError(msg)
+    return float(-min(gear_z_in) * 0.0254)
+
+
+def _set_initial_conditions(  # noqa: PLR0917
+    fdm: jsbsim.FGFDMExec, lat_deg: float, lon_deg: float, ground_alt_amsl_m: float, clearance_m: float, yaw_rad: float
+) -> None:
+    """Resting on the ground at home, engines running (at zero throttle), JSBSim's own FCS off."""
+    fdm["ic/lat-geod-deg"] = lat_deg
+    fdm["ic/long-gc-deg"] = lon_deg
+    fdm["ic/terrain-elevation-ft"] = ground_alt_amsl_m / FT_TO_M
+    fdm["ic/h-agl-ft"] = clearance_m / FT_TO_M
+    fdm["ic/psi-true-deg"] = math.degrees(yaw_rad)
+    for name in ("ic/u-fps", "ic/v-fps", "ic/w-fps", "ic/p-rad_sec", "ic/q-rad_sec", "ic/r-rad_sec"):
+        fdm[name] = 0.0
+    with _quiet_stdio():
+        if not fdm.run_ic():
+            msg = "JSBSim run_ic() failed"
+            raise FdmError(msg)
+    fdm["fcs/ScasEngage"] = 0.0
+    fdm["fcs/throttle-cmd-norm"] = 0.0
+    for i in range(4):
+        fdm[f"propulsion/engine[{i}]/set-running"] = 1
 
 
 def _wrap_pi(angle: float) -> float:

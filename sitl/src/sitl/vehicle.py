@@ -74,7 +74,7 @@ class Vehicle:
             ground_alt_amsl_m=home.alt_amsl_m,
             yaw_rad=yaw,
             motor_max_voltage_v=phys.motor_max_voltage_v,
-            root=phys.aircraft_root,
+            aircraft_dir=phys.aircraft_dir,
         )
         b = cfg.battery
         self.battery = BatteryModel(

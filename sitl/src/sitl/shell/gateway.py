@@ -246,7 +246,7 @@ class Gateway:
             self.broadcast(self.encoder.param_value(params, name))
         else:
             self._stats(route).rx_invalid_values += 1
-            self.ap.say(MavSeverity.WARNING, f"Parameter rejected: {reason}")
+            self.ap.say(MavSeverity.WARNING, reason)
             self.send_to(route, self.encoder.param_value(params, name))
         self.flush_events()
 

@@ -1,0 +1,105 @@
+"""Flight quality of the real cascade on the real JSBSim F450 (in process, simulation time)."""
+
+from __future__ import annotations
+
+import math
+
+from unit.sitl.sitl_builders import make_vehicle, pos, run, take_off
+
+from sitl.core.control import Setpoint
+from sitl.core.modes import FlightMode
+from sitl.core.protocol import LandedState, MavResult
+
+
+def test_hover_holds_within_30_cm() -> None:
+    v = make_vehicle()
+    take_off(v, 10.0, settle_s=5.0)
+    worst = 0.0
+    for _ in range(round(30.0 / v.dt_s)):
+        v.step(v.t_s)
+        n, e, d = pos(v)
+        worst = max(worst, math.dist((n, e, d), (0.0, 0.0, -10.0)))
+    assert worst < 0.3, f"hover wandered {worst:.3f} m"
+
+
+def test_hover_holds_with_noisy_estimator() -> None:
+    v = make_vehicle(**{"estimator.mode": "noisy", "estimator.seed": 7, "estimator.horizontal_bias_m": 0.0,
+                        "estimator.vertical_bias_m": 0.0})  # fmt: skip
+    take_off(v, 10.0, settle_s=5.0)
+    worst = 0.0
+    for _ in range(round(20.0 / v.dt_s)):
+        v.step(v.t_s)
+        worst = max(worst, math.dist(pos(v), (0.0, 0.0, -10.0)))
+    assert worst < 0.6, f"hover with estimator noise wandered {worst:.3f} m"
+
+
+def test_ten_metre_step_overshoots_less_than_20_percent() -> None:
+    v = make_vehicle()
+    take_off(v, 10.0)
+    ap = v.autopilot
+    sp = Setpoint(pos=(10.0, 0.0, -10.0), yaw_rad=0.0)
+    ap.offboard_setpoint(sp, v.t_s, v.t_s)
+    assert ap.set_mode(FlightMode.OFFBOARD) is MavResult.ACCEPTED
+    peak = 0.0
+    t0 = v.t_s
+    reached_at = None
+    while v.t_s - t0 < 20.0:
+        ap.offboard_setpoint(sp, v.t_s, v.t_s)
+        run(v, 0.05)
+        n = pos(v)[0]
+        peak = max(peak, n)
+        if reached_at is None and n >= 9.0:
+            reached_at = v.t_s - t0
+    overshoot = (peak - 10.0) / 10.0
+    assert overshoot < 0.20, f"overshoot {100 * overshoot:.1f} %"
+    assert reached_at is not None
+    assert reached_at < 8.0, "the step is too slow"
+    assert abs(pos(v)[0] - 10.0) < 0.1
+
+
+def test_takeoff_land_and_auto_disarm() -> None:
+    v = make_vehicle()
+    ap = v.autopilot
+    run(v, 0.5)
+    assert ap.landed
+    assert ap.landed_state is LandedState.ON_GROUND
+    take_off(v, 5.0, settle_s=2.0)
+    assert not ap.landed
+    assert ap.landed_state is LandedState.IN_AIR
+    assert abs(-pos(v)[2] - 5.0) < 0.3
+    assert ap.land(lat_deg=math.nan, lon_deg=math.nan) is MavResult.ACCEPTED
+    run(v, 3.0)
+    assert ap.landed_state is LandedState.LANDING
+    run(v, 40.0, until=lambda x: not x.autopilot.armed)
+    assert ap.landed
+    assert not ap.armed
+    assert any("auto disarm" in t for _, t in ap.statustexts)
+    assert abs(pos(v)[2]) < 0.3
+
+
+def test_battery_drain_matches_the_pack() -> None:
+    """Coulomb counting agrees with the integrated current, and hover endurance is 10-20 minutes."""
+    v = make_vehicle()
+    take_off(v, 10.0, settle_s=2.0)
+    b0 = v.battery_reading
+    integrated_mah = 0.0
+    currents = []
+    for _ in range(round(60.0 / v.dt_s)):
+        v.step(v.t_s)
+        current = v.battery_reading.current_a
+        integrated_mah += current * v.dt_s / 3.6
+        currents.append(current)
+    b1 = v.battery_reading
+    used_mah = b1.consumed_mah - b0.consumed_mah
+    assert abs(used_mah - integrated_mah) < 0.01 * used_mah
+    capacity = v.cfg.battery.capacity_mah
+    assert abs((b0.remaining - b1.remaining) * capacity - used_mah) < 0.01 * used_mah
+    hover_current = sum(currents) / len(currents)
+    assert 8.0 < hover_current < 20.0, hover_current
+    endurance_min = capacity / 1000.0 / hover_current * 60.0
+    assert 10.0 <= endurance_min <= 20.0, f"hover endurance {endurance_min:.1f} min"
+    # the power drawn is the motors' electrical power through the ESCs plus avionics
+    motors_w = v.fdm.motor_electrical_power_w()
+    expected_w = motors_w / v.cfg.battery.esc_efficiency + v.cfg.battery.avionics_power_w
+    assert abs(b1.power_w - expected_w) < 0.05 * expected_w
+    assert b1.voltage_v < b0.voltage_v
