@@ -8,7 +8,7 @@ import pytest
 from sim_worlds import DEFAULT_WORLD_YAML, flat_config, small_config
 
 from uav_sim_bridge.core.world import World, generate_world
-from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.core.world_config import PeopleConfig, load_world_config
 from uav_sim_bridge.render import Renderer
 
 
@@ -38,4 +38,13 @@ def default_renderer(default_world: World) -> Iterator[Renderer]:
 def small_renderer(small_world: World) -> Iterator[Renderer]:
     r = Renderer(small_world)
     yield r
+    r.close()
+
+
+@pytest.fixture(scope="session")
+def flat_world_with_people() -> Iterator[tuple[World, Renderer]]:
+    """A flat empty world with a few people to move around, and its renderer."""
+    world = generate_world(flat_config(people=PeopleConfig(count=3)))
+    r = Renderer(world)
+    yield world, r
     r.close()

@@ -23,7 +23,7 @@ from uav_common.geo import GeoPoint, LocalProjection
 from uav_sim_bridge.config import SimBridgeConfig
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.collision import CollisionChecker, Contact
-from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections
+from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections, visible_candidates
 from uav_sim_bridge.core.objects import ObjectPose, WorldObject
 from uav_sim_bridge.core.schedule import RateSchedule
 from uav_sim_bridge.core.sensor_noise import PoseNoise, degrade_depth
@@ -163,8 +163,9 @@ class BridgeEngine:
             frame = self.renderer.render(cam, t_opt)
             dets = None
             if name in det_cams:
-                solo = self.renderer.render_unoccluded_ids(cam, t_opt)
-                dets = ground_truth_detections(frame.instance_id, solo, t_opt, self._objects, cfg.detections)
+                cands = visible_candidates(frame.instance_id, t_opt, self._objects, cfg.detections)
+                alone = self.renderer.unoccluded_pixel_counts(cam, t_opt, cands) if cands else {}
+                dets = ground_truth_detections(frame.instance_id, t_opt, self._objects, cfg.detections, alone)
             depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng) if cfg.noise.enabled else frame.depth_m
             outputs.append(CameraOutput(cam, t_opt, frame, depth, dets))
         contacts = self.collisions.check(self._previous_position, state.position_m)

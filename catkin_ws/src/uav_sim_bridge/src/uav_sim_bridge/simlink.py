@@ -175,14 +175,22 @@ class SimLinkClient:
                 self.counters.rx_bad += 1
                 break
             self.counters.rx_datagrams += 1
+            self._reset_parser()  # a datagram holds whole messages: never carry a fragment over
             try:
                 msgs = self.mav.parse_buffer(data) or []
             except (mavlink.MAVError, ValueError, IndexError, struct.error):
                 self.counters.rx_bad += 1
-                self.mav.buf = bytearray()  # resynchronise on the next datagram
                 continue
+            if self.mav.buf_len() > 0:
+                self.counters.rx_bad += 1  # trailing bytes that are not a whole message
             out.extend(msgs)
         return out
+
+    def _reset_parser(self) -> None:
+        self.mav.buf = bytearray()
+        self.mav.buf_index = 0
+        self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+        self.mav.have_prefix_error = False
 
     # ------------------------------------------------------------------ send
     def _send(self, msg: Any) -> None:

@@ -4,8 +4,8 @@ An object registers in a camera image when (1) at least ``min_pixels`` of its pi
 are visible in the instance image (so it is in the frame and not fully occluded) and
 (2) its centre is within ``max_range_m`` of the camera.  Its visible fraction is the
 number of visible pixels over the number it would cover with nothing else in the
-scene (the renderer's unoccluded pass, which draws people and vehicles alone), both
-counted inside the frame.
+scene (the renderer draws each candidate alone in an occlusion query), both counted
+inside the frame.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from uav_sim_bridge.core.objects import WorldObject
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.world_config import ObjectClass
 
-__all__ = ["DetectionConfig", "GroundTruthDetection", "ground_truth_detections"]
+__all__ = ["DetectionConfig", "GroundTruthDetection", "ground_truth_detections", "visible_candidates"]
 
 
 @dataclass(frozen=True)
@@ -60,22 +60,43 @@ class GroundTruthDetection:
     position_m: tuple[float, float, float]
 
 
-def ground_truth_detections(
+def visible_candidates(
     instance_id: npt.NDArray[np.integer[Any]],
-    unoccluded_id: npt.NDArray[np.integer[Any]] | None,
     t_map_optical: RigidTransform,
     objects: Mapping[int, WorldObject] | Iterable[WorldObject],
     cfg: DetectionConfig,
+) -> list[int]:
+    """Ids of the objects of ``cfg.classes`` with at least ``min_pixels`` visible pixels and within range."""
+    objs = objects if isinstance(objects, Mapping) else {o.instance_id: o for o in objects}
+    ids = np.asarray(instance_id)
+    counts = np.bincount(ids.ravel().astype(np.int64), minlength=1)
+    eye = t_map_optical.translation_m
+    return sorted(
+        iid
+        for iid, o in objs.items()
+        if o.object_class in cfg.class_ids
+        and iid < len(counts)
+        and counts[iid] >= cfg.min_pixels
+        and float(np.linalg.norm(o.center_m - eye)) <= cfg.max_range_m
+    )
+
+
+def ground_truth_detections(
+    instance_id: npt.NDArray[np.integer[Any]],
+    t_map_optical: RigidTransform,
+    objects: Mapping[int, WorldObject] | Iterable[WorldObject],
+    cfg: DetectionConfig,
+    unoccluded_pixels: Mapping[int, int] | None = None,
 ) -> list[GroundTruthDetection]:
     """Detections of the objects of ``cfg.classes`` in one image, sorted by instance id.
 
     Args:
         instance_id: ``(H, W)`` rendered instance image.
-        unoccluded_id: ``(H, W)`` the same view with only the candidate objects drawn,
-            or None (then the visible fraction is 1 for every detection).
         t_map_optical: camera pose (its translation is the camera centre).
         objects: the candidate objects *at their current poses*, keyed by instance id.
         cfg: classes, range limit and minimum pixel count.
+        unoccluded_pixels: pixels each object would cover alone in this frame
+            (:meth:`Renderer.unoccluded_pixel_counts`); None = visible fraction 1.
     """
     objs = objects if isinstance(objects, Mapping) else {o.instance_id: o for o in objects}
     wanted = cfg.class_ids
@@ -92,11 +113,6 @@ def ground_truth_detections(
     rows, cols = np.nonzero(mask)
     hit = ids[rows, cols].astype(np.int64)
     counts = np.bincount(hit, minlength=top)
-    solo = (
-        np.bincount(np.asarray(unoccluded_id).ravel().astype(np.int64), minlength=top)
-        if unoccluded_id is not None
-        else None
-    )
     big = np.iinfo(np.int64).max
     x_min = np.full(top, big, np.int64)
     y_min = np.full(top, big, np.int64)
@@ -115,7 +131,7 @@ def ground_truth_detections(
         if rng_m > cfg.max_range_m:
             continue
         visible = int(counts[iid])
-        full = int(solo[iid]) if solo is not None and iid < len(solo) else visible
+        full = int(unoccluded_pixels.get(int(iid), visible)) if unoccluded_pixels is not None else visible
         fraction = min(1.0, visible / full) if full > 0 else 1.0
         out.append(
             GroundTruthDetection(

@@ -214,8 +214,15 @@ class Renderer:
         w = self.world
         m = w.mesh
         cls = w.instance_class[w.face_instance]
-        dyn_faces = m.faces[np.isin(cls, [5, 6])]
+        dyn_mask = np.isin(cls, [5, 6])
+        order = np.argsort(w.face_instance[dyn_mask], kind="stable")
+        dyn_faces = m.faces[dyn_mask][order]
+        dyn_face_ids = w.face_instance[dyn_mask][order]
         used, inverse = np.unique(dyn_faces, return_inverse=True)
+        ids_sorted, first = np.unique(dyn_face_ids, return_index=True)
+        counts = np.diff(np.append(first, len(dyn_face_ids)))
+        # index range (first index, index count) of each person/vehicle in the dynamic IBO
+        self._dyn_ranges = {int(i): (int(f) * 3, int(c) * 3) for i, f, c in zip(ids_sorted, first, counts, strict=True)}
         self._dyn_inst = m.vertex_instance[used]
         self._dyn_normals_local = np.zeros((len(used), 3), np.float32)
         self._dyn_local = np.zeros((len(used), 3), np.float64)
@@ -354,17 +361,29 @@ class Renderer:
             instance_id=target.buf_inst[::-1].astype(np.uint16),
         )
 
-    def render_unoccluded_ids(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint16]:
-        """Instance ids of people and vehicles drawn *alone* (nothing else occludes them).
+    def unoccluded_pixel_counts(
+        self, camera: CameraModel, t_map_optical: RigidTransform, instance_ids: list[int]
+    ) -> dict[int, int]:
+        """Pixels each person/vehicle would cover in the frame with nothing else drawn.
 
-        Comparing per-instance pixel counts with :meth:`render` gives visible fractions.
+        Each object is drawn alone into a cleared depth buffer inside an occlusion query,
+        so objects hidden by other people or vehicles count too.  Comparing with the
+        pixels visible in :meth:`render` gives visible fractions.
+
+        Raises:
+            KeyError: an id is not a person or vehicle of this world.
         """
         self._check_thread()
         target = self._setup_camera(camera, t_map_optical)
-        if self.dynamic_triangles:
-            self._dyn_vao.render(self._mgl.TRIANGLES)
-        target.fbo.read_into(target.buf_inst, attachment=2, components=1, dtype="u4", alignment=1)
-        return target.buf_inst[::-1].astype(np.uint16)
+        out: dict[int, int] = {}
+        for iid in instance_ids:
+            first, count = self._dyn_ranges[iid]
+            target.fbo.clear(depth=1.0)
+            query = self.ctx.query(samples=True)
+            with query:
+                self._dyn_vao.render(self._mgl.TRIANGLES, vertices=count, first=first)
+            out[iid] = int(query.samples)
+        return out
 
     def close(self) -> None:
         """Release every GL object and the context."""

@@ -1,0 +1,128 @@
+"""Ground-truth detections as a person walks in and out of the frame and of range."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from uav_sim_bridge.core.camera import CameraModel, look_at
+from uav_sim_bridge.core.detections import DetectionConfig, ground_truth_detections, visible_candidates
+from uav_sim_bridge.core.objects import ObjectPose, WorldObject
+from uav_sim_bridge.core.transforms import RigidTransform
+from uav_sim_bridge.core.world import World
+from uav_sim_bridge.core.world_config import ObjectClass
+from uav_sim_bridge.render import Renderer
+
+CFG = DetectionConfig(classes=("person",), max_range_m=100.0, min_pixels=4)
+
+
+@pytest.fixture(scope="module")
+def scene(flat_world_with_people: tuple[World, Renderer]) -> tuple[World, Renderer]:
+    return flat_world_with_people
+
+
+def _detect(renderer: Renderer, cam: CameraModel, pose: RigidTransform, objs: dict[int, WorldObject]):
+    """What the bridge does: render, find candidates, count their unoccluded pixels, register."""
+    frame = renderer.render(cam, pose)
+    cands = visible_candidates(frame.instance_id, pose, objs, CFG)
+    alone = renderer.unoccluded_pixel_counts(cam, pose, cands)
+    return ground_truth_detections(frame.instance_id, pose, objs, CFG, alone), frame
+
+
+def test_person_walks_through_the_frame(scene: tuple[World, Renderer]) -> None:
+    world, renderer = scene
+    person = world.objects_of_class(ObjectClass.PERSON)[0]
+    cam = CameraModel.simple(320, 240, 60.0)
+    pose = look_at([0.0, -40.0, 20.0], [0.0, 0.0, 0.0])  # looking north, the frame spans x in about [-25, 25]
+    seen = []
+    for x in np.arange(-60.0, 61.0, 5.0):
+        moved = WorldObject(
+            person.instance_id, person.object_class, person.name, ObjectPose((x, 0.0, 0.0)), person.size_m
+        )
+        renderer.set_object_pose(person.instance_id, moved.pose)
+        dets, frame = _detect(renderer, cam, pose, {moved.instance_id: moved})
+        seen.append(bool(dets))
+        if dets:
+            d = dets[0]
+            assert d.instance_id == person.instance_id
+            assert d.object_class is ObjectClass.PERSON
+            ys, xs = np.nonzero(frame.instance_id == person.instance_id)
+            assert (d.x_min, d.y_min, d.x_max, d.y_max) == (xs.min(), ys.min(), xs.max(), ys.max())
+            assert d.range_m == pytest.approx(math.dist(moved.center_m, pose.translation_m))
+            uv, _ = cam.project(pose.inverse().apply(moved.center_m[None]))
+            assert d.x_min - 1 <= uv[0, 0] <= d.x_max + 1
+    xs = np.arange(-60.0, 61.0, 5.0)
+    inside = np.abs(xs) <= 20.0
+    outside = np.abs(xs) >= 35.0
+    assert all(np.array(seen)[inside])  # appears while in the frame
+    assert not any(np.array(seen)[outside])  # and disappears when it leaves
+
+
+def test_person_walks_out_of_range(scene: tuple[World, Renderer]) -> None:
+    world, renderer = scene
+    person = world.objects_of_class(ObjectClass.PERSON)[0]
+    cam = CameraModel.simple(640, 480, 20.0)  # a narrow lens, so a person 150 m away is still many pixels
+    eye = np.array([0.0, -10.0, 10.0])
+    results = {}
+    for dist in (60.0, 95.0, 105.0, 150.0):
+        target = np.array([0.0, -10.0 + dist, 0.0])
+        moved = WorldObject(
+            person.instance_id, person.object_class, person.name, ObjectPose(tuple(target)), person.size_m
+        )
+        renderer.set_object_pose(person.instance_id, moved.pose)
+        pose = look_at(eye, target + np.array([0.0, 0.0, 0.86]))
+        dets, frame = _detect(renderer, cam, pose, {moved.instance_id: moved})
+        assert (frame.instance_id == person.instance_id).sum() >= 4  # in frame at every distance
+        results[dist] = bool(dets)
+    assert results == {60.0: True, 95.0: True, 105.0: False, 150.0: False}
+
+
+def test_occlusion_and_visible_fraction(scene: tuple[World, Renderer]) -> None:
+    world, renderer = scene
+    near, far = world.objects_of_class(ObjectClass.PERSON)[:2]
+    cam = CameraModel.simple(320, 240, 40.0)
+    pose = look_at([0.0, -20.0, 0.9], [0.0, 0.0, 0.9])  # eye level, looking north
+
+    def place(x_far: float) -> list:
+        objs = {
+            near.instance_id: WorldObject(
+                near.instance_id, near.object_class, near.name, ObjectPose((0.0, 0.0, 0.0)), near.size_m
+            ),
+            far.instance_id: WorldObject(
+                far.instance_id, far.object_class, far.name, ObjectPose((x_far, 4.0, 0.0)), far.size_m
+            ),
+        }
+        for o in objs.values():
+            renderer.set_object_pose(o.instance_id, o.pose)
+        return _detect(renderer, cam, pose, objs)[0]
+
+    dets = {d.instance_id: d for d in place(0.0)}  # the far person fully behind the near one
+    assert dets[near.instance_id].visible_fraction == pytest.approx(1.0)
+    assert far.instance_id not in dets
+    dets = {d.instance_id: d for d in place(0.25)}  # half hidden
+    assert 0.1 < dets[far.instance_id].visible_fraction < 0.9
+    dets = {d.instance_id: d for d in place(3.0)}  # side by side
+    assert dets[far.instance_id].visible_fraction == pytest.approx(1.0)
+
+
+def test_classes_and_minimum_pixels() -> None:
+    ids = np.zeros((10, 10), np.uint16)
+    ids[2:4, 2:4] = 7  # 4 pixels
+    ids[6, 6] = 8  # 1 pixel
+    objs = [
+        WorldObject(7, ObjectClass.VEHICLE, "car", ObjectPose((0.0, 0.0, 0.0)), (4.0, 2.0, 1.5)),
+        WorldObject(8, ObjectClass.PERSON, "p", ObjectPose((1.0, 0.0, 0.0)), (0.5, 0.5, 1.7)),
+        WorldObject(9, ObjectClass.TREE, "t", ObjectPose((1.0, 0.0, 0.0)), (3.0, 3.0, 9.0)),
+    ]
+    pose = RigidTransform.from_rpy([0.0, 0.0, 30.0])
+    dets = ground_truth_detections(ids, pose, objs, DetectionConfig())
+    assert [(d.instance_id, d.x_min, d.y_min, d.x_max, d.y_max) for d in dets] == [(7, 2, 2, 3, 3)]
+    assert dets[0].visible_fraction == 1.0
+    assert ground_truth_detections(ids, pose, objs, DetectionConfig(classes=("tree",))) == []
+    far = DetectionConfig(max_range_m=10.0)
+    assert ground_truth_detections(ids, pose, objs, far) == []
+    assert visible_candidates(ids, pose, objs, DetectionConfig()) == [7]
+    with pytest.raises(ValueError, match="unknown object class"):
+        DetectionConfig(classes=("dragon",))
