@@ -214,7 +214,7 @@ class JsbsimQuad:
                 f["accelerations/a-pilot-y-ft_sec2"] * FT_TO_M,
                 f["accelerations/a-pilot-z-ft_sec2"] * FT_TO_M,
             ),
-            height_above_ground_m=f["position/h-agl-ft"] * FT_TO_M - self.ground_clearance_m,
+            height_above_ground_m=max(0.0, f["position/h-agl-ft"] * FT_TO_M - self.ground_clearance_m),
             gravity_mps2=g * FT_TO_M,
         )
         if not all(math.isfinite(v) for v in (state.alt_amsl_m, *state.vel_ned_mps, *state.q_wxyz)):

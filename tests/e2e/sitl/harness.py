@@ -94,3 +94,102 @@ def connect(port: int, *, source_system: int = 255, source_component: int = 190)
         msg = f"no heartbeat on UDP {port}"
         raise TimeoutError(msg)
     return conn
+
+
+class Gcs:
+    """A small pymavlink ground station for the e2e tests: remembers the latest of each message."""
+
+    def __init__(self, conn: mavutil.mavfile) -> None:
+        self.conn = conn
+        self.latest: dict[str, object] = {}
+        self.texts: list[str] = []
+        self._chunks: dict[int, dict[int, str]] = {}
+        self._last_hb = 0.0
+
+    @classmethod
+    def listen(cls, port: int, **kw: int) -> Gcs:
+        return cls(connect(port, **kw))
+
+    def _statustext(self, msg: object) -> None:
+        """Collect texts, reassembling MAVLink 2 chunks (id != 0) like QGC does."""
+        text, chunk_id, seq = msg.text, msg.id, msg.chunk_seq  # type: ignore[attr-defined]
+        if chunk_id == 0:
+            self.texts.append(text)
+            return
+        parts = self._chunks.setdefault(chunk_id, {})
+        parts[seq] = text
+        if len(text) < 50:
+            self.texts.append("".join(parts[i] for i in sorted(parts)))
+            del self._chunks[chunk_id]
+
+    def heartbeat(self) -> None:
+        self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        self._last_hb = time.monotonic()
+
+    def pump(self, timeout_s: float = 0.05, *, heartbeats: bool = True) -> None:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if heartbeats and time.monotonic() - self._last_hb >= 1.0:
+                self.heartbeat()
+            msg = self.conn.recv_match(blocking=True, timeout=max(0.0, min(0.05, deadline - time.monotonic())))
+            if msg is not None:
+                kind = msg.get_type()
+                self.latest[kind] = msg
+                if kind == "STATUSTEXT":
+                    self._statustext(msg)
+            if time.monotonic() >= deadline:
+                return
+
+    def wait(self, kind: str, pred: object = None, timeout_s: float = 30.0, *, heartbeats: bool = True) -> object:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.latest.pop(kind, None)
+            self.pump(0.05, heartbeats=heartbeats)
+            msg = self.latest.get(kind)
+            if msg is not None and (pred is None or pred(msg)):  # type: ignore[operator]
+                return msg
+        msg = f"no {kind} matching the condition within {timeout_s} s; texts: {self.texts[-5:]}"
+        raise TimeoutError(msg)
+
+    def wait_text(self, fragment: str, timeout_s: float = 30.0, *, heartbeats: bool = True) -> str:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for text in self.texts:
+                if fragment in text:
+                    return text
+            self.pump(0.1, heartbeats=heartbeats)
+        msg = f"no STATUSTEXT containing {fragment!r} within {timeout_s} s; got {self.texts}"
+        raise TimeoutError(msg)
+
+    def cmd(self, command: int, *params: float, timeout_s: float = 5.0) -> int:
+        p = [*params, *([0.0] * 7)][:7]
+        self.conn.mav.command_long_send(1, 1, command, 0, *p)
+        ack = self.wait("COMMAND_ACK", lambda m: m.command == command, timeout_s)
+        return int(ack.result)  # type: ignore[attr-defined]
+
+    def mode(self) -> int:
+        hb = self.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1)
+        return int(hb.custom_mode)  # type: ignore[attr-defined]
+
+    def wait_mode(self, custom_mode: int, timeout_s: float = 30.0, *, heartbeats: bool = True) -> None:
+        self.wait(
+            "HEARTBEAT",
+            lambda m: m.get_srcComponent() == 1 and m.custom_mode == custom_mode,
+            timeout_s,
+            heartbeats=heartbeats,
+        )
+
+    def set_param(self, name: str, value: float, *, integer: bool = False) -> None:
+        import struct
+
+        wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if integer else float(value)
+        ptype = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+        self.conn.mav.param_set_send(1, 1, name.encode(), wire, ptype)
+        self.wait("PARAM_VALUE", lambda m: m.param_id == name and m.param_value == wire)
+
+    def relative_alt_m(self) -> float:
+        gpi = self.wait("GLOBAL_POSITION_INT")
+        return float(gpi.relative_alt) / 1000.0  # type: ignore[attr-defined]
+
+    def close(self) -> None:
+        self.conn.close()

@@ -153,7 +153,7 @@ def test_offboard_needs_a_stream_and_loss_triggers_hold() -> None:
     assert ap.set_mode(FlightMode.OFFBOARD) is MavResult.ACCEPTED
     run(v, 5.0)  # the stream stops here
     assert ap.mode is FlightMode.AUTO_LOITER
-    assert any("offboard setpoints lost" in t for t in texts(v))
+    assert any("Offboard setpoints lost" in t for t in texts(v))
 
 
 def test_low_battery_returns_and_critical_battery_lands() -> None:
@@ -167,14 +167,14 @@ def test_low_battery_returns_and_critical_battery_lands() -> None:
                   change_mode=True)  # fmt: skip
     run(v, 120.0, until=lambda x: x.autopilot.mode is FlightMode.AUTO_RTL)
     assert ap.mode is FlightMode.AUTO_RTL
-    assert any("low battery" in t for t in texts(v))
+    assert any("Low battery" in t for t in texts(v))
     assert v.battery_reading.remaining <= 0.15
     # the pilot takes over (PX4 allows it) and keeps hovering until the critical level
     assert ap.set_mode(FlightMode.AUTO_LOITER) is MavResult.ACCEPTED
     run(v, 300.0, until=lambda x: x.autopilot.mode is FlightMode.AUTO_LAND)
     assert ap.mode is FlightMode.AUTO_LAND
     assert v.battery_reading.remaining <= 0.12
-    sev = [s for s, t in ap.statustexts if "critical battery" in t]
+    sev = [s for s, t in ap.statustexts if "Critical battery" in t]
     assert sev == [MavSeverity.EMERGENCY]
 
 
@@ -188,7 +188,7 @@ def test_geofence_breach_returns_home() -> None:
     run(v, 30.0, until=lambda x: x.autopilot.mode is FlightMode.AUTO_RTL)
     assert ap.mode is FlightMode.AUTO_RTL
     assert 25.0 < pos(v)[0] < 30.0
-    assert any("geofence" in t for t in texts(v))
+    assert any("Geofence" in t for t in texts(v))
     run(v, 60.0, until=lambda x: not x.autopilot.armed)
     assert math.hypot(*pos(v)[:2]) < 1.0
 
@@ -202,7 +202,7 @@ def test_datalink_loss_action_from_nav_dll_act() -> None:
     assert ap.mode is FlightMode.AUTO_LOITER
     run(v, 3.0)
     assert ap.mode is FlightMode.AUTO_RTL
-    assert any("data link lost" in t for t in texts(v))
+    assert any("Data link lost" in t for t in texts(v))
     ap.datalink_heard(v.t_s, v.t_s)
     run(v, 0.1)
     assert any("Data link regained" in t for t in texts(v))
@@ -216,7 +216,7 @@ def test_collision_crashes_and_disarms_for_good() -> None:
     assert ap.crashed
     assert not ap.armed
     assert ap.system_status.name == "FLIGHT_TERMINATION"
-    assert any("Collision with world object 42" in t for t in texts(v))
+    assert any("Collision (world object 42)" in t for t in texts(v))
     run(v, 3.0)
     assert all(d == 0.0 for d in v.duty)
     assert ap.arm(force=True) is MavResult.DENIED

@@ -98,7 +98,7 @@ def test_geofence_radius_and_altitude() -> None:
     assert fs.update(inputs(2, distance_from_home_m=120.0), p) == []
     assert fs.update(inputs(3, distance_from_home_m=50.0), p) == []
     (again,) = fs.update(inputs(4, altitude_above_home_m=51.0), p)
-    assert "51 m high" in again.text
+    assert "alt 51 m > 50 m" in again.text
     p.set("GF_ACTION", 0)
     assert monitor().update(inputs(0, distance_from_home_m=500.0), p) == []
 
@@ -169,3 +169,21 @@ def test_core_is_pure() -> None:
             for name in names:
                 assert name.split(".")[0] not in FORBIDDEN, f"{path.name} imports {name}"
                 assert not name.startswith(("sitl.shell", "sitl.fdm", "sitl.simulator")), f"{path.name}: {name}"
+
+
+def test_failsafe_texts_fit_one_statustext() -> None:
+    """Announcements fit the 50 characters of one STATUSTEXT, so every GCS shows them whole."""
+    p = ParamTable()
+    for key, value in (("NAV_DLL_ACT", 3), ("GF_MAX_HOR_DIST", 1000.0), ("GF_MAX_VER_DIST", 120.0)):
+        p.set(key, value)
+    fs = monitor()
+    fs.gcs.heard(0.0, 0.0)
+    fs.offboard.heard(0.0, 0.0)
+    fs.manual.heard(0.0, 0.0)
+    events = fs.update(inputs(100.0, battery_remaining=0.05, mode=FlightMode.OFFBOARD, distance_from_home_m=12345.0), p)
+    events += fs.update(inputs(101.0, mode=FlightMode.POSCTL, altitude_above_home_m=1234.0), p)
+    kinds = {e.kind for e in events}
+    assert {FailsafeKind.BATTERY_CRITICAL, FailsafeKind.DATALINK_LOST, FailsafeKind.OFFBOARD_LOST,
+            FailsafeKind.MANUAL_CONTROL_LOST, FailsafeKind.GEOFENCE} <= kinds  # fmt: skip
+    for event in events:
+        assert len(event.text.encode()) <= 50, event.text

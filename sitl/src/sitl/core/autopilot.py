@@ -431,8 +431,7 @@ class Autopilot:
         self.heartbeat_due = True
         self.say(
             MavSeverity.EMERGENCY,
-            f"Collision with world object {world_id}: vehicle crashed, "
-            + ("motors disarmed" if was_armed else "was disarmed"),
+            f"Collision (world object {world_id}): crashed, disarmed",
         )
         if was_armed and self.on_disarm is not None:
             self.on_disarm()

@@ -145,7 +145,7 @@ class FailsafeMonitor:
                         FailsafeKind.DATALINK_LOST,
                         action,
                         MavSeverity.CRITICAL,
-                        f"Failsafe: data link lost, {_describe(action)}",
+                        f"Data link lost: {_describe(action)}",
                     )
                 )
             else:
@@ -168,7 +168,7 @@ class FailsafeMonitor:
                         FailsafeKind.OFFBOARD_LOST,
                         act,
                         MavSeverity.CRITICAL,
-                        f"Failsafe: offboard setpoints lost, {_describe(act)}",
+                        f"Offboard setpoints lost: {_describe(act)}",
                     )
                 )
         else:
@@ -186,7 +186,7 @@ class FailsafeMonitor:
                         FailsafeKind.MANUAL_CONTROL_LOST,
                         act,
                         MavSeverity.CRITICAL,
-                        f"Failsafe: manual control lost, {_describe(act)}",
+                        f"Manual control lost: {_describe(act)}",
                     )
                 )
             elif not rc_lost:
@@ -210,7 +210,7 @@ class FailsafeMonitor:
                     FailsafeKind.BATTERY_CRITICAL,
                     action,
                     MavSeverity.EMERGENCY,
-                    f"Failsafe: critical battery level ({100 * remaining:.0f}% remaining), {_describe(action)}",
+                    f"Critical battery ({100 * remaining:.0f}%): {_describe(action)}",
                 )
             )
         elif remaining <= params["BAT_LOW_THR"] and FailsafeKind.BATTERY_LOW not in self._active:
@@ -221,7 +221,7 @@ class FailsafeMonitor:
                     FailsafeKind.BATTERY_LOW,
                     action,
                     MavSeverity.CRITICAL,
-                    f"Failsafe: low battery level ({100 * remaining:.0f}% remaining), {_describe(action)}",
+                    f"Low battery ({100 * remaining:.0f}%): {_describe(action)}",
                 )
             )
 
@@ -234,16 +234,16 @@ class FailsafeMonitor:
             if FailsafeKind.GEOFENCE not in self._active:
                 self._active.add(FailsafeKind.GEOFENCE)
                 what = (
-                    f"{x.distance_from_home_m:.0f} m from home (limit {radius:.0f} m)"
+                    f"{x.distance_from_home_m:.0f} m > {radius:.0f} m"
                     if outside_h
-                    else f"{x.altitude_above_home_m:.0f} m high (limit {max_alt:.0f} m)"
+                    else f"alt {x.altitude_above_home_m:.0f} m > {max_alt:.0f} m"
                 )
                 events.append(
                     FailsafeEvent(
                         FailsafeKind.GEOFENCE,
                         action,
                         MavSeverity.CRITICAL,
-                        f"Failsafe: geofence breached, {what}, {_describe(action)}",
+                        f"Geofence ({what}): {_describe(action)}",
                     )
                 )
         elif not (outside_h or outside_v):
@@ -256,5 +256,5 @@ def _describe(action: Action) -> str:
         Action.HOLD: "holding position",
         Action.RETURN: "returning home",
         Action.LAND: "landing",
-        Action.POSITION: "switching to position mode",
+        Action.POSITION: "position mode",
     }[action]

@@ -12,6 +12,7 @@ import math
 from typing import Any
 
 from sitl.core.control import Setpoint
+from sitl.core.failsafe import FailsafeKind
 from sitl.core.modes import FlightMode
 from sitl.core.params import ParamTable, encode_wire_value
 from sitl.core.protocol import MissionState, MsgId
@@ -185,13 +186,20 @@ class Encoder:
         health = SENSORS
         if not self.v.est.gps_ok:
             health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        if ap.armed or ap.prearm_failure() is not None:
+        if ap.prearm_failure() is not None:
             health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
         if ap.crashed:
             health &= ~(mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
+        present = SENSORS
+        params = self.v.params
+        fence_on = int(params["GF_ACTION"]) != 0 and (params["GF_MAX_HOR_DIST"] > 0 or params["GF_MAX_VER_DIST"] > 0)
+        if fence_on:
+            present |= mavlink.MAV_SYS_STATUS_GEOFENCE
+            if FailsafeKind.GEOFENCE not in ap.failsafe.active:
+                health |= mavlink.MAV_SYS_STATUS_GEOFENCE
         return self.factory.sys_status_encode(
-            SENSORS,
-            SENSORS,
+            present,
+            present,
             health,
             _clamp_int(self.load_permille, 0, 1000),
             _clamp_int(b.voltage_v * 1000.0, 0, UINT16_MAX - 1),
