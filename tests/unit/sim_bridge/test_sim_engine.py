@@ -119,12 +119,17 @@ def test_collisions_with_walls_and_trees_but_not_ground_or_roofs(engine_of, smal
     assert (
         eng.step(_state(1.0, (x, y, roof_z + 0.3)), home=None, wanted=quiet, want_detections=False).new_contacts == []
     )
+    # flying into a tree crown: the path between two states is swept, so entering the crown counts
     tree = small_world.objects_of_class(ObjectClass.TREE)[0]
     tx, ty, tz = tree.pose.position_m
-    hits = eng.step(
-        _state(2.0, (tx, ty, tz + tree.size_m[2] * 0.6)), home=None, wanted=quiet, want_detections=False
-    ).new_contacts
-    assert [h.instance_id for h in hits] == [tree.instance_id]
+    z_mid = tz + tree.size_m[2] * 0.6
+    eng = engine_of()
+    assert (
+        eng.step(_state(3.0, (tx - 12.0, ty, z_mid)), home=None, wanted=quiet, want_detections=False).new_contacts == []
+    )
+    hits = eng.step(_state(3.5, (tx, ty, z_mid)), home=None, wanted=quiet, want_detections=False).new_contacts
+    assert tree.instance_id in [h.instance_id for h in hits]
+    assert {h.object_class for h in hits} == {ObjectClass.TREE}
 
 
 def test_move_object_and_errors(engine_of, small_world: World) -> None:

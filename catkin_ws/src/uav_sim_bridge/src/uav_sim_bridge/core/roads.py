@@ -253,7 +253,9 @@ def plan_roads(
             on_road[r, c] = True
         pts = np.array([[gx[c], gy[r]] for r, c in path])
         pts[0], pts[-1] = a, b
-        smooth = _chaikin(pts, 3)
+        # thin the 8-connected staircase before corner cutting, so curves come out smooth
+        keep = np.unique(np.concatenate([np.arange(0, len(pts), 3), [len(pts) - 1]]))
+        smooth = _chaikin(pts[keep], 4)
         polylines.append(resample_polyline(smooth, 3.0))
     return RoadNetwork(tuple(polylines), villages_m, cfg.width_m)
 
