@@ -14,6 +14,7 @@ out on wall time so clients stay connected.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import selectors
@@ -140,6 +141,7 @@ class Simulator:
             )
             self.links["tcp"] = (tcp, tc.profile)
             self.selector.register(tcp.server, selectors.EVENT_READ, ("tcp-server", "tcp"))
+            tcp.on_drop = self._unregister
         self.gateway = Gateway(
             self.vehicle,
             self.links,
@@ -168,6 +170,10 @@ class Simulator:
             msg = "time.mode lockstep needs the simulation link (sim_link.enabled: true)"
             raise SitlError(msg)
 
+    def _unregister(self, sock: Any) -> None:
+        with contextlib.suppress(KeyError, ValueError):
+            self.selector.unregister(sock)
+
     def ports(self) -> dict[str, int]:
         """Bound local ports by link name (useful with port 0)."""
         out = {name: int(getattr(link, "local_port", 0)) for name, (link, _) in self.links.items()}
@@ -176,7 +182,7 @@ class Simulator:
         return out
 
     # ------------------------------------------------------------------ I/O
-    def poll(self, timeout_s: float) -> None:  # noqa: PLR0912 - one branch per socket kind
+    def poll(self, timeout_s: float) -> None:
         """Wait up to ``timeout_s`` for input and handle everything that is pending."""
         gateway = self.gateway
         assert gateway is not None
@@ -211,17 +217,9 @@ class Simulator:
                 for rx in tcp.read_client(name):
                     gateway.handle(rx, wall)
                 if name not in tcp.clients and client is not None:
-                    self.selector.unregister(client.sock)
                     log.info("TCP client %s:%d disconnected", *client.addr)
             elif kind == "sim" and self.sim_link is not None:
                 self.sim_link.read()
-        # a TCP client that was dropped while sending is unregistered here
-        if "tcp" in self.links:
-            tcp_link = self.links["tcp"][0]
-            assert isinstance(tcp_link, TcpServerLink)
-            for key in list(self.selector.get_map().values()):
-                if key.data[0] == "tcp-client" and key.data[1] not in tcp_link.clients:
-                    self.selector.unregister(key.fileobj)
 
     def _step(self, wall_s: float) -> None:
         self.vehicle.step(wall_s)

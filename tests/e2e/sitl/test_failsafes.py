@@ -10,9 +10,8 @@ import math
 from pathlib import Path
 
 import pytest
-from pymavlink import mavutil
-
 from e2e.sitl.harness import Gcs, run_sitl
+from pymavlink import mavutil
 
 pytestmark = pytest.mark.slow
 

@@ -20,12 +20,11 @@ import time
 from pathlib import Path
 
 import pytest
+from e2e.sitl.harness import run_sitl
+from helpers.procs import artifacts_dir
 from pymavlink import mavutil
 
-from helpers.procs import artifacts_dir
 from sitl.core.params import ParamTable
-
-from e2e.sitl.harness import run_sitl
 
 pytestmark = pytest.mark.slow
 

@@ -352,6 +352,7 @@ class TcpServerLink(MavLink):
         self.max_clients = max_clients
         self.clients: dict[int, _TcpClient] = {}
         self._next_id = 0
+        self.on_drop: Callable[[socket.socket], None] | None = None
 
     def fileno(self) -> int:
         return self.server.fileno()
@@ -394,8 +395,11 @@ class TcpServerLink(MavLink):
         return out
 
     def drop(self, cid: int) -> None:
+        """Forget a client; ``on_drop`` hears of it while its socket is still open."""
         client = self.clients.pop(cid, None)
         if client is not None:
+            if self.on_drop is not None:
+                self.on_drop(client.sock)
             with contextlib.suppress(OSError):
                 client.sock.close()
             self.forget_peer((self.name, cid))
