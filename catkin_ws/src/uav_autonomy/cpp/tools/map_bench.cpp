@@ -1,0 +1,325 @@
+// Benchmark driver for bench/bench_map.py: prints one JSON object per line.
+//
+//   map_bench frames   --res 0.5 --frames 5 [--modes full,truncated,surface] [--backends octomap,openvdb]
+//                      [--stock 1] [--threads 2] [--agl 50] [--spacing 20] [--max-range -1]
+//       Per-frame insertion time and memory for each backend x mode on the same nadir frames, plus stock
+//       OcTree::insertPointCloud (octomap_server's insertion) on the same frames as the baseline, and whether
+//       full ray clearing gives exactly stock's set of occupied and free keys (and log-odds).
+//   map_bench pipeline --res 0.5 --frames 5 --mode surface --leaf 0.5 [--backend octomap]
+//       Time of the whole Mapper::insert (transform, filters, PCL voxel grid, insertion).
+//   map_bench coverage --res 0.5 --backend octomap --mode surface --side 1000 [--spacing 20] [--row 80]
+//       Lawnmower over a side x side square at 50 m AGL; map memory and process RSS at the end.
+#include "synthetic_world.h"
+
+#include <uav_mapping/mapper.h>
+#include <uav_mapping/octree_map.h>
+
+#include <octomap/OcTree.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+using namespace uav_mapping;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+std::map<std::string, std::string> parseArgs(int argc, char** argv, int first) {
+  std::map<std::string, std::string> a;
+  for (int i = first; i + 1 < argc; i += 2) {
+    std::string k = argv[i];
+    if (k.rfind("--", 0) == 0) k = k.substr(2);
+    a[k] = argv[i + 1];
+  }
+  return a;
+}
+std::string arg(const std::map<std::string, std::string>& a, const std::string& k, const std::string& def) {
+  auto it = a.find(k);
+  return it == a.end() ? def : it->second;
+}
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    if (!item.empty()) out.push_back(item);
+  }
+  return out;
+}
+
+std::size_t rssBytes() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) return static_cast<std::size_t>(std::stoull(line.substr(6))) * 1024;
+  }
+  return 0;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+std::string jsonList(const std::vector<double>& v) {
+  std::ostringstream o;
+  o << "[";
+  for (std::size_t i = 0; i < v.size(); ++i) o << (i ? ", " : "") << v[i];
+  return o.str() + "]";
+}
+
+struct Frame {
+  ColoredPoints map_points;
+  Point3 origin;
+  double stamp_s;
+};
+
+std::vector<Frame> makeFrames(const synthetic::World& world, int count, double spacing_m, double agl_m, int threads) {
+  std::vector<Frame> frames;
+  synthetic::Camera cam;
+  for (int i = 0; i < count; ++i) {
+    // Along x through the world centre's neighbourhood, away from the clear home pad.
+    const double x = -0.5 * spacing_m * (count - 1) + spacing_m * i + 40.0;
+    const double y = 35.0;
+    const RigidTransform pose = synthetic::nadirPose(world, x, y, agl_m);
+    Frame f;
+    f.map_points = synthetic::toMap(synthetic::render(world, cam, pose, threads), pose);
+    f.origin = pose.origin();
+    f.stamp_s = 10.0 + 0.5 * i;
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
+octomap::Pointcloud toOctomap(const ColoredPoints& pts) {
+  octomap::Pointcloud pc;
+  pc.reserve(pts.size());
+  for (const Point3& p : pts.xyz) pc.push_back(p);
+  return pc;
+}
+
+/// Exact comparison of a map against stock OctoMap: every voxel of every stock leaf (stock prunes too, so a leaf
+/// may cover 2^k voxels per axis) must exist in the map with the same log-odds, and the map must hold no other
+/// voxel.
+struct Identity {
+  bool identical = true;
+  std::size_t stock_occupied = 0;  // voxels
+  std::size_t stock_free = 0;      // voxels
+  std::size_t mismatches = 0;
+  std::size_t map_voxels = 0;
+};
+Identity compareToStock(const octomap::OcTree& stock, const VoxelMap& map) {
+  Identity id;
+  for (auto it = stock.begin_leafs(), end = stock.end_leafs(); it != end; ++it) {
+    const unsigned size = 1U << (16 - it.getDepth());
+    const std::size_t voxels = static_cast<std::size_t>(size) * size * size;
+    if (stock.isNodeOccupied(*it))
+      id.stock_occupied += voxels;
+    else
+      id.stock_free += voxels;
+    // The iterator's key is the node centre at its depth; the first voxel is half a node below it.
+    const octomap::OcTreeKey c = it.getKey();
+    const int half = static_cast<int>(size / 2);
+    for (unsigned dz = 0; dz < size; ++dz)
+      for (unsigned dy = 0; dy < size; ++dy)
+        for (unsigned dx = 0; dx < size; ++dx) {
+          const Key k(static_cast<uint16_t>(c[0] - half + dx), static_cast<uint16_t>(c[1] - half + dy),
+                      static_cast<uint16_t>(c[2] - half + dz));
+          VoxelState s;
+          if (!map.query(k, s) || s.log_odds != it->getLogOdds()) ++id.mismatches;
+        }
+  }
+  map.forEachLeaf([&](const Leaf& l) { id.map_voxels += static_cast<std::size_t>(l.size) * l.size * l.size; }, false);
+  id.identical = id.mismatches == 0 && id.map_voxels == id.stock_occupied + id.stock_free;
+  return id;
+}
+
+int runFrames(const std::map<std::string, std::string>& a) {
+  const double res = std::stod(arg(a, "res", "0.5"));
+  const int n_frames = std::stoi(arg(a, "frames", "5"));
+  const int threads = std::stoi(arg(a, "threads", "2"));
+  const double agl = std::stod(arg(a, "agl", "50"));
+  const double spacing = std::stod(arg(a, "spacing", "20"));
+  const double max_range = std::stod(arg(a, "max-range", "-1"));
+  const bool stock = arg(a, "stock", "1") == "1";
+  const double truncation = std::stod(arg(a, "truncation", "3"));
+  synthetic::World world{synthetic::WorldOptions()};
+  const auto frames = makeFrames(world, n_frames, spacing, agl, threads);
+  std::size_t points = 0;
+  for (const auto& f : frames) points += f.map_points.size();
+  std::cout << "{\"kind\": \"frames\", \"res_m\": " << res << ", \"frames\": " << n_frames
+            << ", \"points_per_frame\": " << points / std::max<std::size_t>(1, frames.size())
+            << ", \"source\": \"synthetic heightfield (tools/synthetic_world.cpp)\"}" << std::endl;
+
+  std::unique_ptr<octomap::OcTree> stock_tree;
+  if (stock) {
+    stock_tree = std::make_unique<octomap::OcTree>(res);
+    std::vector<double> ms;
+    const std::size_t rss0 = rssBytes();
+    for (const auto& f : frames) {
+      const octomap::Pointcloud pc = toOctomap(f.map_points);
+      const auto t0 = Clock::now();
+      stock_tree->insertPointCloud(pc, f.origin, max_range, false, false);
+      ms.push_back(msSince(t0));
+    }
+    std::cout << "{\"kind\": \"run\", \"impl\": \"stock\", \"backend\": \"octomap\", \"mode\": \"full\", \"res_m\": "
+              << res << ", \"ms\": " << jsonList(ms) << ", \"median_ms\": " << median(ms)
+              << ", \"memory_bytes\": " << stock_tree->memoryUsage() << ", \"rss_delta_bytes\": "
+              << static_cast<long long>(rssBytes()) - static_cast<long long>(rss0) << ", \"nodes\": " << stock_tree->size()
+              << "}" << std::endl;
+  }
+  for (const std::string& backend : split(arg(a, "backends", "octomap,openvdb"))) {
+    for (const std::string& mode : split(arg(a, "modes", "full,truncated,surface"))) {
+      MapperConfig cfg;
+      cfg.backend = backendFromString(backend);
+      cfg.resolution_m = res;
+      cfg.mode = insertModeFromString(mode);
+      cfg.max_range_m = max_range;
+      cfg.truncation_m = truncation;
+      cfg.threads = threads;
+      Mapper mapper(cfg);
+      std::vector<double> ms, raycast, update, layers;
+      std::size_t hits = 0, misses = 0;
+      const std::size_t rss0 = rssBytes();
+      for (const auto& f : frames) {
+        const InsertStats st = mapper.insertMapPoints(f.map_points, f.origin, f.stamp_s);
+        ms.push_back(st.total_ms);
+        raycast.push_back(st.raycast_ms);
+        update.push_back(st.update_ms);
+        layers.push_back(st.layers_ms);
+        hits += st.hits;
+        misses += st.misses;
+      }
+      std::cout << "{\"kind\": \"run\", \"impl\": \"uav_mapping\", \"backend\": \"" << backend << "\", \"mode\": \"" << mode
+                << "\", \"res_m\": " << res << ", \"threads\": " << threads << ", \"ms\": " << jsonList(ms)
+                << ", \"median_ms\": " << median(ms) << ", \"median_raycast_ms\": " << median(raycast)
+                << ", \"median_update_ms\": " << median(update) << ", \"median_layers_ms\": " << median(layers)
+                << ", \"hits\": " << hits << ", \"misses\": " << misses
+                << ", \"memory_bytes\": " << mapper.map().memoryBytes() << ", \"rss_delta_bytes\": "
+                << static_cast<long long>(rssBytes()) - static_cast<long long>(rss0)
+                << ", \"leaves\": " << mapper.map().leafCount();
+      if (stock_tree && mode == "full") {
+        const Identity id = compareToStock(*stock_tree, mapper.map());
+        std::cout << ", \"identical_to_stock\": " << (id.identical ? "true" : "false")
+                  << ", \"stock_occupied\": " << id.stock_occupied << ", \"stock_free\": " << id.stock_free
+                  << ", \"map_voxels\": " << id.map_voxels << ", \"mismatches\": " << id.mismatches;
+      }
+      std::cout << "}" << std::endl;
+    }
+  }
+  return 0;
+}
+
+int runPipeline(const std::map<std::string, std::string>& a) {
+  const double res = std::stod(arg(a, "res", "0.5"));
+  const int n_frames = std::stoi(arg(a, "frames", "5"));
+  const int threads = std::stoi(arg(a, "threads", "2"));
+  synthetic::World world{synthetic::WorldOptions()};
+  synthetic::Camera cam;
+  MapperConfig cfg;
+  cfg.backend = backendFromString(arg(a, "backend", "octomap"));
+  cfg.resolution_m = res;
+  cfg.mode = insertModeFromString(arg(a, "mode", "surface"));
+  cfg.filter.voxel_leaf_m = std::stod(arg(a, "leaf", "0"));
+  cfg.threads = threads;
+  Mapper mapper(cfg);
+  std::vector<double> total, filter, insert;
+  std::size_t pts_in = 0, pts_out = 0;
+  for (int i = 0; i < n_frames; ++i) {
+    const RigidTransform pose = synthetic::nadirPose(world, 20.0 * i + 40.0, 35.0, 50.0);
+    const ColoredPoints optical = synthetic::render(world, cam, pose, threads);
+    const InsertStats st = mapper.insert(optical, pose, 10.0 + i);
+    total.push_back(st.total_ms);
+    filter.push_back(st.filter_ms);
+    insert.push_back(st.total_ms - st.filter_ms);
+    pts_in += st.filter.points_in;
+    pts_out += st.points_inserted;
+  }
+  std::cout << "{\"kind\": \"pipeline\", \"backend\": \"" << arg(a, "backend", "octomap") << "\", \"mode\": \""
+            << arg(a, "mode", "surface") << "\", \"res_m\": " << res << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
+            << ", \"median_total_ms\": " << median(total) << ", \"median_filter_ms\": " << median(filter)
+            << ", \"median_insert_ms\": " << median(insert) << ", \"points_in_per_frame\": " << pts_in / n_frames
+            << ", \"points_inserted_per_frame\": " << pts_out / n_frames << "}" << std::endl;
+  return 0;
+}
+
+int runCoverage(const std::map<std::string, std::string>& a) {
+  const double res = std::stod(arg(a, "res", "0.5"));
+  const double side = std::stod(arg(a, "side", "1000"));
+  const double spacing = std::stod(arg(a, "spacing", "20"));
+  const double row = std::stod(arg(a, "row", "80"));
+  const int threads = std::stoi(arg(a, "threads", "2"));
+  synthetic::WorldOptions wo;
+  wo.half_size_m = 0.5 * side + 60.0;
+  synthetic::World world(wo);
+  synthetic::Camera cam;
+  MapperConfig cfg;
+  cfg.backend = backendFromString(arg(a, "backend", "octomap"));
+  cfg.resolution_m = res;
+  cfg.mode = insertModeFromString(arg(a, "mode", "surface"));
+  cfg.max_range_m = std::stod(arg(a, "max-range", "-1"));
+  cfg.threads = threads;
+  const std::size_t rss0 = rssBytes();
+  Mapper mapper(cfg);
+  std::vector<double> ms;
+  int frame = 0;
+  const int rows = static_cast<int>(std::ceil(side / row));
+  const auto t_start = Clock::now();
+  for (int r = 0; r < rows; ++r) {
+    const double y = -0.5 * side + (r + 0.5) * row;
+    const int cols = static_cast<int>(std::ceil(side / spacing)) + 1;
+    for (int c = 0; c < cols; ++c) {
+      const double x = (r % 2 == 0) ? -0.5 * side + c * spacing : 0.5 * side - c * spacing;
+      const RigidTransform pose = synthetic::nadirPose(world, x, y, 50.0);
+      const ColoredPoints pts = synthetic::toMap(synthetic::render(world, cam, pose, threads), pose);
+      const InsertStats st = mapper.insertMapPoints(pts, pose.origin(), 0.5 * frame);
+      ms.push_back(st.total_ms);
+      ++frame;
+    }
+  }
+  const LayersSnapshot layers = mapper.layers();
+  std::size_t observed = 0;
+  for (float o : layers.observed) observed += o > 0.0f;
+  std::cout << "{\"kind\": \"coverage\", \"backend\": \"" << arg(a, "backend", "octomap") << "\", \"mode\": \""
+            << arg(a, "mode", "surface") << "\", \"res_m\": " << res << ", \"side_m\": " << side
+            << ", \"frames\": " << frame << ", \"median_ms\": " << median(ms)
+            << ", \"observed_area_m2\": " << observed * res * res << ", \"memory_bytes\": " << mapper.map().memoryBytes()
+            << ", \"layers_bytes\": " << mapper.columnLayers().memoryBytes() << ", \"leaves\": " << mapper.map().leafCount()
+            << ", \"rss_delta_bytes\": " << static_cast<long long>(rssBytes()) - static_cast<long long>(rss0)
+            << ", \"wall_s\": " << msSince(t_start) / 1000.0 << "}" << std::endl;
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2) {
+    std::cerr << "usage: map_bench frames|pipeline|coverage [--key value ...]\n";
+    return 2;
+  }
+  const std::string cmd = argv[1];
+  const auto a = parseArgs(argc, argv, 2);
+  try {
+    if (cmd == "frames") return runFrames(a);
+    if (cmd == "pipeline") return runPipeline(a);
+    if (cmd == "coverage") return runCoverage(a);
+  } catch (const std::exception& e) {
+    std::cerr << "map_bench: " << e.what() << "\n";
+    return 1;
+  }
+  std::cerr << "unknown command " << cmd << "\n";
+  return 2;
+}

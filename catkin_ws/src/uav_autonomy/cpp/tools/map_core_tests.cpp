@@ -1,0 +1,858 @@
+// Tests of the map server core without ROS, against the real liboctomap and OpenVDB.
+//
+//   map_core_tests --list          names of all tests
+//   map_core_tests NAME [NAME...]  run the named tests (exit 1 if any fails)
+//   map_core_tests --all           run every test
+//   map_core_tests --write-sample DIR   write sample outputs for the Python readers' tests
+//
+// tests/unit/map_server/test_map_core.py runs each test as its own pytest case.
+#include "synthetic_world.h"
+
+#include <uav_mapping/column_layers.h>
+#include <uav_mapping/mapper.h>
+#include <uav_mapping/octree_map.h>
+#include <uav_mapping/vdb_map.h>
+
+#include <octomap/ColorOcTree.h>
+#include <octomap/OcTree.h>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+using namespace uav_mapping;
+
+namespace {
+
+struct Failure : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+#define CHECK(cond)                                                                                   \
+  do {                                                                                                \
+    if (!(cond)) throw Failure(std::string(__FILE__) + ":" + std::to_string(__LINE__) + ": " #cond); \
+  } while (0)
+
+#define CHECK_MSG(cond, msg)                                                                             \
+  do {                                                                                                   \
+    if (!(cond)) {                                                                                       \
+      std::ostringstream os_;                                                                            \
+      os_ << __FILE__ << ":" << __LINE__ << ": " #cond " -- " << msg;                                    \
+      throw Failure(os_.str());                                                                          \
+    }                                                                                                    \
+  } while (0)
+
+template <class F>
+void checkThrows(F&& f, const std::string& what) {
+  try {
+    f();
+  } catch (const MapIoError&) {
+    return;
+  } catch (const std::invalid_argument&) {
+    return;
+  }
+  throw Failure("expected an exception: " + what);
+}
+
+std::map<std::string, std::function<void()>>& registry() {
+  static std::map<std::string, std::function<void()>> tests;
+  return tests;
+}
+struct Register {
+  Register(const char* name, std::function<void()> fn) { registry()[name] = std::move(fn); }
+};
+#define TEST(name)                                  \
+  void test_##name();                               \
+  const Register reg_##name(#name, &test_##name);   \
+  void test_##name()
+
+std::string tempPath(const std::string& name) {
+  const char* base = std::getenv("MAP_TEST_TMP");
+  std::string dir = base ? base : "/tmp";
+  return dir + "/map_core_tests_" + std::to_string(getpid()) + "_" + name;
+}
+
+Point3 P(double x, double y, double z) {
+  return Point3(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+}
+
+ColoredPoints cloud(const std::vector<Point3>& pts, const std::vector<std::array<uint8_t, 3>>& rgb = {}) {
+  ColoredPoints c;
+  c.xyz = pts;
+  c.rgb = rgb;
+  return c;
+}
+
+Key keyAt(double res, double x, double y, double z) {
+  Key k;
+  const bool ok = KeyGrid(res).toKey(P(x, y, z), k);
+  if (!ok) throw Failure("key out of range");
+  return k;
+}
+
+/// Every voxel of every leaf, expanded, keyed by Morton code.
+std::map<uint64_t, VoxelState> voxels(const VoxelMap& map) {
+  std::map<uint64_t, VoxelState> out;
+  map.forEachLeaf(
+      [&](const Leaf& l) {
+        for (unsigned dz = 0; dz < l.size; ++dz)
+          for (unsigned dy = 0; dy < l.size; ++dy)
+            for (unsigned dx = 0; dx < l.size; ++dx)
+              out[mortonOf(Key(static_cast<uint16_t>(l.key[0] + dx), static_cast<uint16_t>(l.key[1] + dy),
+                               static_cast<uint16_t>(l.key[2] + dz)))] = l.state;
+      },
+      false);
+  return out;
+}
+
+bool sameState(const VoxelState& a, const VoxelState& b) {
+  return a.log_odds == b.log_odds && a.time_s == b.time_s && a.color_set == b.color_set &&
+         (!a.color_set || (a.r == b.r && a.g == b.g && a.b == b.b));
+}
+
+void checkSameVoxels(const VoxelMap& a, const VoxelMap& b) {
+  const auto va = voxels(a);
+  const auto vb = voxels(b);
+  CHECK_MSG(va.size() == vb.size(), va.size() << " vs " << vb.size() << " voxels");
+  for (const auto& [m, s] : va) {
+    auto it = vb.find(m);
+    CHECK_MSG(it != vb.end(), "voxel missing in second map");
+    CHECK_MSG(sameState(s, it->second), "state differs: log-odds " << s.log_odds << " vs " << it->second.log_odds
+                                                                   << ", t " << s.time_s << " vs " << it->second.time_s);
+  }
+}
+
+void checkSameLayers(const LayersSnapshot& a, const LayersSnapshot& b) {
+  CHECK(a.width == b.width && a.height == b.height);
+  CHECK(a.origin_x_m == b.origin_x_m && a.origin_y_m == b.origin_y_m && a.resolution_m == b.resolution_m);
+  auto same = [](float x, float y) { return (std::isnan(x) && std::isnan(y)) || x == y; };
+  for (std::size_t i = 0; i < a.observed.size(); ++i) {
+    CHECK_MSG(same(a.elevation_m[i], b.elevation_m[i]), "elevation differs at " << i << ": " << a.elevation_m[i]
+                                                                                 << " vs " << b.elevation_m[i]);
+    CHECK_MSG(same(a.last_seen_s[i], b.last_seen_s[i]), "last seen differs at " << i);
+    CHECK_MSG(a.observed[i] == b.observed[i], "observed differs at " << i);
+  }
+}
+
+/// A few small synthetic nadir frames (64 x 48, 20 m above ground): the shared test input.
+struct SmallFrames {
+  std::vector<ColoredPoints> map_points;
+  std::vector<RigidTransform> poses;
+  std::vector<ColoredPoints> optical;
+};
+SmallFrames smallFrames(int n, double agl = 20.0, int width = 64, int height = 48) {
+  static const synthetic::World world{synthetic::WorldOptions{120.0, 0.25, 3, 4.0, 20.0}};
+  synthetic::Camera cam;
+  cam.width = width;
+  cam.height = height;
+  SmallFrames f;
+  for (int i = 0; i < n; ++i) {
+    const RigidTransform pose = synthetic::nadirPose(world, 30.0 + 6.0 * i, 25.0 + 2.0 * i, agl);
+    f.poses.push_back(pose);
+    f.optical.push_back(synthetic::render(world, cam, pose, 1));
+    f.map_points.push_back(synthetic::toMap(f.optical.back(), pose));
+  }
+  return f;
+}
+
+MapperConfig config(Backend backend, double res, InsertMode mode) {
+  MapperConfig c;
+  c.backend = backend;
+  c.resolution_m = res;
+  c.mode = mode;
+  c.threads = 2;
+  return c;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Keys and frame updates
+
+TEST(keys_match_octomap) {
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<double> u(-3000.0, 3000.0);
+  for (double res : {0.05, 0.25, 0.5, 1.0, 0.3}) {
+    octomap::OcTree tree(res);
+    const KeyGrid grid(res);
+    for (int i = 0; i < 20000; ++i) {
+      const Point3 p = P(u(rng), u(rng), u(rng) / 10.0);
+      octomap::OcTreeKey a(0, 0, 0);
+      Key b(0, 0, 0);
+      const bool ok_a = tree.coordToKeyChecked(p, a);
+      const bool ok_b = grid.toKey(p, b);
+      CHECK(ok_a == ok_b);
+      if (!ok_a) continue;
+      CHECK(a == b);
+      CHECK(keyOfMorton(mortonOf(b)) == b);
+      for (int depth = 0; depth < 16; ++depth)
+        CHECK(childIndexAt(mortonOf(b), depth) == octomap::computeChildIdx(b, 15 - depth));
+    }
+    // Outside the addressable cube (+-32768 voxels) and non-finite coordinates are rejected.
+    Key k;
+    CHECK(!grid.toKey(P(40000.0 * res, 0, 0), k));
+    CHECK(!grid.toKey(P(std::nan(""), 0, 0), k));
+    CHECK(!grid.toKey(P(INFINITY, 0, 0), k));
+  }
+}
+
+/// OctoMap's own computeUpdate sets (free without occupied, occupied), as stock insertPointCloud uses them.
+void octomapSets(const ColoredPoints& pts, const Point3& origin, double res, double max_range, std::set<uint64_t>& free_set,
+                 std::set<uint64_t>& occ_set) {
+  octomap::OcTree tree(res);
+  octomap::KeyRay ray;
+  for (const Point3& p : pts.xyz) {
+    if (max_range < 0.0 || (p - origin).norm() <= max_range) {
+      if (tree.computeRayKeys(origin, p, ray))
+        for (const auto& k : ray) free_set.insert(mortonOf(k));
+      octomap::OcTreeKey k;
+      if (tree.coordToKeyChecked(p, k)) occ_set.insert(mortonOf(k));
+    } else {
+      const Point3 end = origin + (p - origin).normalized() * static_cast<float>(max_range);
+      if (tree.computeRayKeys(origin, end, ray))
+        for (const auto& k : ray) free_set.insert(mortonOf(k));
+    }
+  }
+  for (uint64_t m : occ_set) free_set.erase(m);
+}
+
+TEST(full_rays_equal_octomap_key_sets) {
+  const SmallFrames f = smallFrames(1);
+  for (double res : {0.2, 0.5}) {
+    for (double max_range : {-1.0, 15.0}) {
+      for (int threads : {1, 2}) {
+        for (std::size_t byte_map : {std::size_t(512) << 20, std::size_t(0)}) {  // dense and sort fallback paths
+          FrameUpdateBuilder builder(res, byte_map);
+          for (std::size_t i = 0; i < f.map_points.size(); ++i) {
+            std::set<uint64_t> ref_free;
+            std::set<uint64_t> ref_occ;
+            octomapSets(f.map_points[i], f.poses[i].origin(), res, max_range, ref_free, ref_occ);
+            FrameUpdate fu;
+            RayOptions ro;
+            ro.max_range_m = max_range;
+            ro.threads = threads;
+            builder.build(f.map_points[i], f.poses[i].origin(), ro, fu);
+            CHECK(fu.used_byte_map == (byte_map > 0));
+            std::set<uint64_t> free_set;
+            std::set<uint64_t> occ_set;
+            uint64_t last = 0;
+            for (std::size_t j = 0; j < fu.updates.size(); ++j) {
+              CHECK_MSG(j == 0 || fu.updates[j].morton > last, "updates not sorted/unique");
+              last = fu.updates[j].morton;
+              (fu.updates[j].hit ? occ_set : free_set).insert(last);
+              CHECK(fu.box.contains(keyOfMorton(last)));
+            }
+            CHECK_MSG(occ_set == ref_occ, "occupied sets differ: " << occ_set.size() << " vs " << ref_occ.size());
+            CHECK_MSG(free_set == ref_free, "free sets differ: " << free_set.size() << " vs " << ref_free.size());
+            CHECK(fu.hits == occ_set.size() && fu.misses == free_set.size());
+            CHECK(!free_set.empty() && (max_range > 0.0 || !occ_set.empty()));
+          }
+        }
+      }
+    }
+  }
+}
+
+TEST(full_rays_match_stock_insert_point_cloud) {
+  // Three overlapping frames: every voxel's log-odds after our insertion equals stock OctoMap's after
+  // OcTree::insertPointCloud (octomap_server's update), in both backends.
+  const SmallFrames f = smallFrames(3);
+  const double res = 0.25;
+  octomap::OcTree stock(res);
+  for (std::size_t i = 0; i < f.map_points.size(); ++i) {
+    octomap::Pointcloud pc;
+    for (const Point3& p : f.map_points[i].xyz) pc.push_back(p);
+    stock.insertPointCloud(pc, f.poses[i].origin(), -1.0, false, false);
+  }
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper m(config(b, res, InsertMode::kFull));
+    for (std::size_t i = 0; i < f.map_points.size(); ++i) m.insertMapPoints(f.map_points[i], f.poses[i].origin(), 5.0 + i);
+    std::size_t stock_voxels = 0;
+    std::size_t occupied = 0;
+    for (auto it = stock.begin_leafs(); it != stock.end_leafs(); ++it) {
+      const unsigned size = 1U << (16 - it.getDepth());
+      const int half = static_cast<int>(size / 2);
+      for (unsigned dz = 0; dz < size; ++dz)
+        for (unsigned dy = 0; dy < size; ++dy)
+          for (unsigned dx = 0; dx < size; ++dx) {
+            const Key k(static_cast<uint16_t>(it.getKey()[0] - half + dx), static_cast<uint16_t>(it.getKey()[1] - half + dy),
+                        static_cast<uint16_t>(it.getKey()[2] - half + dz));
+            VoxelState s;
+            CHECK(m.map().query(k, s));
+            CHECK_MSG(s.log_odds == it->getLogOdds(), "log-odds " << s.log_odds << " vs stock " << it->getLogOdds());
+            ++stock_voxels;
+            occupied += stock.isNodeOccupied(*it);
+          }
+    }
+    CHECK(voxels(m.map()).size() == stock_voxels);
+    CHECK(occupied > 100 && stock_voxels > 10 * occupied / 2);
+  }
+}
+
+TEST(truncated_rays_clear_only_near_hits) {
+  const double res = 0.5;
+  Mapper m(config(Backend::kOctomap, res, InsertMode::kTruncated));
+  // One vertical ray from 20 m down to a hit at z = 0.25 (voxel 0..0.5), truncation 3 m.
+  m.insertMapPoints(cloud({P(0.25, 0.25, 0.25)}), P(0.25, 0.25, 20.0), 1.0);
+  VoxelState s;
+  CHECK(m.map().query(keyAt(res, 0.25, 0.25, 0.25), s) && m.map().isOccupied(s.log_odds));
+  for (double z = 0.75; z < 3.25; z += 0.5) {
+    CHECK_MSG(m.map().query(keyAt(res, 0.25, 0.25, z), s), "free voxel missing at z=" << z);
+    CHECK(!m.map().isOccupied(s.log_odds));
+  }
+  for (double z = 3.75; z < 20.0; z += 0.5) CHECK_MSG(!m.map().query(keyAt(res, 0.25, 0.25, z), s), "z=" << z);
+  CHECK(voxels(m.map()).size() == 7);  // hit + 6 free voxels (3 m / 0.5 m)
+}
+
+TEST(surface_mode_occupancy_color_and_time) {
+  const double res = 0.5;
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper m(config(b, res, InsertMode::kSurface));
+    // Two points in one voxel (colours averaged), one point in another voxel.
+    m.insertMapPoints(cloud({P(1.1, 2.1, 3.1), P(1.2, 2.2, 3.3), P(-4.0, 0.2, 0.1)},
+                            {{100, 0, 10}, {200, 50, 30}, {7, 8, 9}}),
+                      P(0, 0, 20), 100.25);
+    CHECK(m.timeOrigin() == 100.0);
+    CHECK(voxels(m.map()).size() == 2);  // no free space in surface mode
+    VoxelState s;
+    CHECK(m.map().query(keyAt(res, 1.1, 2.1, 3.1), s));
+    CHECK(m.map().isOccupied(s.log_odds));
+    CHECK(s.log_odds == m.map().logOdds().hit);
+    CHECK(s.color_set && s.r == 150 && s.g == 25 && s.b == 20);
+    CHECK(s.time_s == 0.25f);
+    CHECK(m.map().query(keyAt(res, -4.0, 0.2, 0.1), s) && s.r == 7 && s.g == 8 && s.b == 9);
+    // A later observation blends the colour (default weight 0.5) and moves the time.
+    m.insertMapPoints(cloud({P(1.1, 2.1, 3.1)}, {{50, 25, 220}}), P(0, 0, 20), 101.5);
+    CHECK(m.map().query(keyAt(res, 1.1, 2.1, 3.1), s));
+    CHECK(s.r == 100 && s.g == 25 && s.b == 120);
+    CHECK(s.time_s == 1.5f);
+    CHECK(s.log_odds == std::min(2.0f * m.map().logOdds().hit, m.map().logOdds().clamp_max));
+    // Points without colour leave the colour unset.
+    m.insertMapPoints(cloud({P(9.0, 9.0, 1.0)}), P(0, 0, 20), 102.0);
+    CHECK(m.map().query(keyAt(res, 9.0, 9.0, 1.0), s) && !s.color_set);
+  }
+}
+
+TEST(log_odds_clamp_and_top_voxel_turning_free) {
+  const double res = 0.5;
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper m(config(b, res, InsertMode::kFull));
+    const LogOddsModel& lo = m.map().logOdds();
+    // A "roof" seen 10 times: clamps at the maximum; the column's elevation is the roof voxel's centre.
+    for (int i = 0; i < 10; ++i) m.insertMapPoints(cloud({P(0.25, 0.25, 10.2)}), P(0.25, 0.25, 30.0), i);
+    VoxelState s;
+    CHECK(m.map().query(keyAt(res, 0.25, 0.25, 10.2), s) && s.log_odds == lo.clamp_max);
+    LayersSnapshot layers = m.layers();
+    CHECK(layers.width == 1 && layers.height == 1);
+    CHECK(layers.elevation_m[0] == 10.25f);
+    // The roof is gone: rays now pass through it to the ground at z = 0.2. After enough misses the roof voxel
+    // is free and the elevation drops to the ground voxel.
+    int frames = 0;
+    while (true) {
+      m.insertMapPoints(cloud({P(0.25, 0.25, 0.2)}), P(0.25, 0.25, 30.0), 20.0 + frames);
+      ++frames;
+      CHECK(m.map().query(keyAt(res, 0.25, 0.25, 10.2), s));
+      if (!m.map().isOccupied(s.log_odds)) break;
+      CHECK(frames < 20);
+      CHECK(m.layers().elevation_m[0] == 10.25f);
+    }
+    // OctoMap's log-odds: clamp max, then `frames` misses until below the threshold.
+    float expected = lo.clamp_max;
+    for (int i = 0; i < frames; ++i) expected += lo.miss;
+    CHECK(s.log_odds == expected);
+    layers = m.layers();
+    CHECK(layers.elevation_m[0] == 0.25f);
+    CHECK(layers.last_seen_s[0] == 20.0f + frames - 1);
+    // Many more misses clamp at the minimum.
+    for (int i = 0; i < 30; ++i) m.insertMapPoints(cloud({P(0.25, 0.25, 0.2)}), P(0.25, 0.25, 30.0), 60.0 + i);
+    CHECK(m.map().query(keyAt(res, 0.25, 0.25, 10.2), s) && s.log_odds == lo.clamp_min);
+    CHECK(m.map().query(keyAt(res, 0.25, 0.25, 29.9), s) && s.log_odds == lo.clamp_min);  // just below the origin
+  }
+}
+
+TEST(layers_values_nan_and_growth) {
+  const double res = 0.5;
+  Mapper m(config(Backend::kOctomap, res, InsertMode::kSurface));
+  CHECK(m.layers().width == 0);
+  m.insertMapPoints(cloud({P(0.1, 0.1, 1.1), P(0.1, 0.1, 2.6), P(1.6, 0.1, -0.3)}), P(0, 0, 20), 7.0);
+  LayersSnapshot l = m.layers();
+  CHECK(l.resolution_m == 0.5 && l.origin_x_m == 0.0 && l.origin_y_m == 0.0);
+  CHECK(l.width == 4 && l.height == 1);  // x cells 0..3 (the observed box), one row
+  CHECK(l.elevation_m[0] == 2.75f);      // max occupied z per column (voxel centre)
+  CHECK(std::isnan(l.elevation_m[1]) && l.observed[1] == 0.0f && std::isnan(l.last_seen_s[1]));
+  CHECK(l.elevation_m[3] == -0.25f && l.observed[3] == 1.0f && l.last_seen_s[3] == 7.0f);
+  // The map grows west and north: the layers grow with it (origin moves).
+  m.insertMapPoints(cloud({P(-100.2, 60.1, 0.0)}), P(0, 0, 20), 8.0);
+  l = m.layers();
+  CHECK(l.origin_x_m == -100.5 && l.origin_y_m == 0.0);
+  CHECK(l.width == 205 && l.height == 121);
+  const std::size_t row = 120;  // y = 60.1 -> row 120 (rows count northwards)
+  CHECK(l.elevation_m[row * l.width + 0] == 0.25f && l.last_seen_s[row * l.width + 0] == 8.0f);
+  CHECK(l.elevation_m[0 * l.width + 201] == 2.75f);  // the first column kept its values after the growth
+  // Coarsened layers (factor 4): max elevation, max time, any observed.
+  const LayersSnapshot c = m.layers(4);
+  CHECK(c.resolution_m == 2.0 && c.origin_x_m == -102.0);
+  const std::size_t col = static_cast<std::size_t>((0.1 - c.origin_x_m) / 2.0);
+  CHECK(c.elevation_m[col] == 2.75f && c.observed[col] == 1.0f);
+}
+
+TEST(layers_incremental_equal_rebuild) {
+  const SmallFrames f = smallFrames(4);
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    for (InsertMode mode : {InsertMode::kFull, InsertMode::kTruncated, InsertMode::kSurface}) {
+      Mapper m(config(b, 0.25, mode));
+      for (std::size_t i = 0; i < f.map_points.size(); ++i) m.insertMapPoints(f.map_points[i], f.poses[i].origin(), 3.0 * i);
+      ColumnLayers rebuilt(0.25);
+      rebuilt.rebuild(m.map());
+      checkSameLayers(m.layers(), rebuilt.snapshot(1, m.timeOrigin()));
+      checkSameLayers(m.layers(3), rebuilt.snapshot(3, m.timeOrigin()));
+      std::size_t known = 0;
+      for (float e : m.layers().elevation_m) known += !std::isnan(e);
+      CHECK(known > 500);
+    }
+  }
+}
+
+TEST(backends_agree) {
+  const SmallFrames f = smallFrames(4);
+  for (InsertMode mode : {InsertMode::kFull, InsertMode::kTruncated, InsertMode::kSurface}) {
+    Mapper octo(config(Backend::kOctomap, 0.25, mode));
+    Mapper vdb(config(Backend::kOpenVdb, 0.25, mode));
+    for (std::size_t i = 0; i < f.map_points.size(); ++i) {
+      octo.insertMapPoints(f.map_points[i], f.poses[i].origin(), 1.0 + i);
+      vdb.insertMapPoints(f.map_points[i], f.poses[i].origin(), 1.0 + i);
+    }
+    checkSameVoxels(octo.map(), vdb.map());
+    CHECK(octo.occupiedCells(0.25) == vdb.occupiedCells(0.25));
+    checkSameLayers(octo.layers(), vdb.layers());
+  }
+}
+
+TEST(pruning_keeps_values) {
+  // A flat floor seen from above: large uniform free regions. Pruned and unpruned maps hold the same voxels;
+  // the pruned ones store fewer leaves.
+  std::vector<Point3> floor_pts;
+  for (double x = -8; x < 8; x += 0.1)
+    for (double y = -8; y < 8; y += 0.1) floor_pts.push_back(P(x, y, 0.05));
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    MapperConfig c = config(b, 0.25, InsertMode::kFull);
+    Mapper pruned(c);
+    c.prune = false;
+    Mapper plain(c);
+    for (int i = 0; i < 2; ++i) {
+      pruned.insertMapPoints(cloud(floor_pts), P(0.1, 0.1, 12.0), i);
+      plain.insertMapPoints(cloud(floor_pts), P(0.1, 0.1, 12.0), i);
+    }
+    checkSameVoxels(pruned.map(), plain.map());
+    CHECK_MSG(pruned.map().leafCount() * 5 < plain.map().leafCount() * 4,
+              pruned.map().leafCount() << " vs " << plain.map().leafCount());
+    CHECK(pruned.map().memoryBytes() < plain.map().memoryBytes());
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Persistence and serialisation
+
+Mapper filledMapper(Backend b, InsertMode mode = InsertMode::kTruncated) {
+  const SmallFrames f = smallFrames(3);
+  Mapper m(config(b, 0.25, mode));
+  for (std::size_t i = 0; i < f.map_points.size(); ++i) m.insertMapPoints(f.map_points[i], f.poses[i].origin(), 1000.5 + i);
+  return m;
+}
+
+TEST(save_load_round_trip_ot) {
+  Mapper a = filledMapper(Backend::kOctomap);
+  const std::string path = tempPath("map.ot");
+  a.save(path);
+  Mapper b(config(Backend::kOctomap, 0.25, InsertMode::kTruncated));
+  b.load(path);
+  checkSameVoxels(a.map(), b.map());
+  CHECK(b.timeOrigin() == a.timeOrigin());
+  checkSameLayers(a.layers(), b.layers());
+  // Standard OctoMap reads the same file as a ColorOcTree with the same log-odds and colours.
+  std::unique_ptr<octomap::AbstractOcTree> generic(octomap::AbstractOcTree::read(path));
+  CHECK(generic != nullptr);
+  auto* color_tree = dynamic_cast<octomap::ColorOcTree*>(generic.get());
+  CHECK(color_tree != nullptr);
+  std::size_t checked = 0;
+  for (auto it = color_tree->begin_leafs(); it != color_tree->end_leafs(); ++it) {
+    VoxelState s;
+    CHECK(a.map().query(it.getKey(), s));
+    CHECK(s.log_odds == it->getLogOdds());
+    if (s.color_set) CHECK(it->getColor() == octomap::ColorOcTreeNode::Color(s.r, s.g, s.b));
+    ++checked;
+  }
+  CHECK(checked == a.map().leafCount());
+  // Saving the loaded map again gives the identical file.
+  const std::string path2 = tempPath("map2.ot");
+  b.save(path2);
+  std::ifstream f1(path, std::ios::binary);
+  std::ifstream f2(path2, std::ios::binary);
+  const std::string s1((std::istreambuf_iterator<char>(f1)), std::istreambuf_iterator<char>());
+  const std::string s2((std::istreambuf_iterator<char>(f2)), std::istreambuf_iterator<char>());
+  CHECK(s1 == s2 && !s1.empty());
+  std::remove(path.c_str());
+  std::remove(path2.c_str());
+}
+
+TEST(save_load_bt_is_standard_binary) {
+  Mapper a = filledMapper(Backend::kOctomap);
+  const std::string path = tempPath("map.bt");
+  a.save(path);
+  octomap::OcTree stock(0.1);
+  CHECK(stock.readBinary(path));  // stock reader (checks the header id and node count)
+  CHECK(stock.getResolution() == 0.25);
+  Mapper b(config(Backend::kOctomap, 0.25, InsertMode::kTruncated));
+  b.load(path);
+  // .bt keeps only the maximum-likelihood occupancy: same occupied / free voxels, no colour or time.
+  const auto va = voxels(a.map());
+  const auto vb = voxels(b.map());
+  CHECK(va.size() == vb.size());
+  for (const auto& [k, s] : va) {
+    const auto& t = vb.at(k);
+    CHECK(a.map().isOccupied(s.log_odds) == b.map().isOccupied(t.log_odds));
+    CHECK(t.time_s == kNoTime && !t.color_set);
+    VoxelState st;
+    octomap::OcTreeNode* n = stock.search(keyOfMorton(k));
+    CHECK(n != nullptr && stock.isNodeOccupied(n) == a.map().isOccupied(s.log_odds));
+    (void)st;
+  }
+  std::remove(path.c_str());
+}
+
+TEST(save_load_round_trip_vdb) {
+  Mapper a = filledMapper(Backend::kOpenVdb);
+  const std::string path = tempPath("map.vdb");
+  a.save(path);
+  Mapper b(config(Backend::kOpenVdb, 0.25, InsertMode::kTruncated));
+  b.load(path);
+  checkSameVoxels(a.map(), b.map());
+  CHECK(b.timeOrigin() == a.timeOrigin());
+  checkSameLayers(a.layers(), b.layers());
+  // The same content as the octree after the same frames.
+  Mapper o = filledMapper(Backend::kOctomap);
+  checkSameVoxels(o.map(), b.map());
+  std::remove(path.c_str());
+}
+
+TEST(load_errors_keep_the_map) {
+  for (Backend backend : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper a = filledMapper(backend, InsertMode::kSurface);
+    const auto before = voxels(a.map());
+    const std::string ext = backend == Backend::kOctomap ? ".ot" : ".vdb";
+    checkThrows([&] { a.load(tempPath("does_not_exist") + ext); }, "missing file");
+    checkThrows([&] { a.load(tempPath("x.txt")); }, "wrong extension");
+    checkThrows([&] { a.save(tempPath("x.txt")); }, "wrong extension on save");
+    checkThrows([&] { a.save("/nonexistent_dir/map" + ext); }, "unwritable path");
+    const std::string garbage = tempPath("garbage") + ext;
+    writeFileAtomically(garbage, "this is not a map\n");
+    checkThrows([&] { a.load(garbage); }, "garbage file");
+    // A truncated file.
+    const std::string good = tempPath("good") + ext;
+    a.save(good);
+    std::ifstream in(good, std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    for (std::size_t cut : {bytes.size() / 10, bytes.size() / 2, bytes.size() * 9 / 10, bytes.size() - 1}) {
+      writeFileAtomically(garbage, bytes.substr(0, cut));
+      checkThrows([&] { a.load(garbage); }, "truncated file");
+    }
+    // Another resolution.
+    Mapper other(config(backend, 0.5, InsertMode::kSurface));
+    checkThrows([&] { other.load(good); }, "resolution mismatch");
+    CHECK(voxels(a.map()).size() == before.size());
+    std::remove(garbage.c_str());
+    std::remove(good.c_str());
+  }
+}
+
+TEST(octomap_message_payloads_are_standard) {
+  Mapper a = filledMapper(Backend::kOctomap);
+  const auto& map = dynamic_cast<const OctreeMap&>(a.map());
+  // octomap_binary: OcTree binary data.
+  std::stringstream bin;
+  map.writeBinaryData(bin);
+  octomap::OcTree tree(0.25);
+  tree.readBinaryData(bin);
+  CHECK(tree.size() == map.tree().size());
+  // octomap_full: ColorOcTree data.
+  std::stringstream full;
+  map.writeFullData(full);
+  octomap::ColorOcTree ctree(0.25);
+  ctree.readData(full);
+  CHECK(ctree.size() == map.tree().size());
+  for (auto it = tree.begin_leafs(); it != tree.end_leafs(); ++it) {
+    VoxelState s;
+    CHECK(a.map().query(it.getKey(), s));
+    CHECK(tree.isNodeOccupied(*it) == a.map().isOccupied(s.log_odds));
+    CHECK(ctree.search(it.getKey())->getLogOdds() == s.log_odds);
+  }
+  // The OpenVDB map converts to the same tree.
+  Mapper v = filledMapper(Backend::kOpenVdb);
+  UavOcTree converted(0.25);
+  copyLeavesToTree(v.map(), converted);
+  std::stringstream vbin;
+  converted.writeBinaryData(vbin);
+  octomap::OcTree vtree(0.25);
+  vtree.readBinaryData(vbin);
+  std::size_t n = 0;
+  for (auto it = vtree.begin_leafs(); it != vtree.end_leafs(); ++it) {
+    VoxelState s;
+    CHECK(a.map().query(it.getKey(), s));
+    CHECK(vtree.isNodeOccupied(*it) == a.map().isOccupied(s.log_odds));
+    ++n;
+  }
+  CHECK(n > 1000);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// clear_bbx, reset, export
+
+TEST(clear_box_frees_only_inside) {
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper m = filledMapper(b, InsertMode::kFull);
+    const auto before = voxels(m.map());
+    const std::array<double, 3> lo{28.0, 20.0, -50.0};
+    const std::array<double, 3> hi{32.0, 26.0, 50.0};
+    const std::size_t changed = m.clearBox(lo, hi);
+    CHECK(changed > 0);
+    const auto after = voxels(m.map());
+    CHECK(after.size() == before.size());  // known voxels stay known; unknown stay unknown
+    // Like octomap_server: the voxels containing the box corners are included.
+    const Key klo = keyAt(0.25, lo[0], lo[1], 0.0);
+    const Key khi = keyAt(0.25, hi[0], hi[1], 0.0);
+    std::size_t inside = 0;
+    for (const auto& [k, s] : after) {
+      const Key key = keyOfMorton(k);
+      const bool in = key[0] >= klo[0] && key[0] <= khi[0] && key[1] >= klo[1] && key[1] <= khi[1];
+      if (in) {
+        CHECK(s.log_odds == m.map().logOdds().clamp_min);
+        ++inside;
+      } else {
+        CHECK(sameState(s, before.at(k)));
+      }
+    }
+    CHECK(inside > 100);
+    // Elevation is unknown inside the box now, still known outside.
+    const LayersSnapshot l = m.layers();
+    const auto cell = [&](double x, double y) {
+      return static_cast<std::size_t>((y - l.origin_y_m) / l.resolution_m) * l.width +
+             static_cast<std::size_t>((x - l.origin_x_m) / l.resolution_m);
+    };
+    CHECK(std::isnan(l.elevation_m[cell(30.1, 23.1)]) && l.observed[cell(30.1, 23.1)] == 1.0f);
+    CHECK(!std::isnan(l.elevation_m[cell(35.1, 23.1)]));
+    ColumnLayers rebuilt(0.25);
+    rebuilt.rebuild(m.map());
+    checkSameLayers(l, rebuilt.snapshot(1, m.timeOrigin()));
+  }
+}
+
+TEST(reset_forgets_everything) {
+  for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
+    Mapper m = filledMapper(b);
+    CHECK(m.map().leafCount() > 0);
+    m.reset();
+    CHECK(m.map().leafCount() == 0 && voxels(m.map()).empty());
+    CHECK(m.layers().width == 0 && std::isnan(m.timeOrigin()));
+    m.insertMapPoints(cloud({P(1, 1, 1)}), P(0, 0, 10), 5.0);
+    CHECK(m.timeOrigin() == 5.0 && m.map().leafCount() > 0);
+  }
+}
+
+std::vector<std::array<int32_t, 3>> readNpy(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  CHECK(bytes.compare(0, 6, "\x93NUMPY") == 0);
+  const std::size_t header_len = static_cast<uint8_t>(bytes[8]) | (static_cast<uint8_t>(bytes[9]) << 8);
+  CHECK((10 + header_len) % 64 == 0);
+  const std::string header = bytes.substr(10, header_len);
+  CHECK(header.find("'descr': '<i4'") != std::string::npos);
+  const std::size_t n = (bytes.size() - 10 - header_len) / 12;
+  CHECK(header.find("'shape': (" + std::to_string(n) + ", 3)") != std::string::npos);
+  std::vector<std::array<int32_t, 3>> rows(n);
+  std::memcpy(rows.data(), bytes.data() + 10 + header_len, n * 12);
+  return rows;
+}
+
+TEST(export_occupied_cells) {
+  const double res = 0.5;
+  Mapper m(config(Backend::kOctomap, res, InsertMode::kSurface));
+  m.insertMapPoints(cloud({P(0.1, 0.1, 0.1), P(0.6, 0.1, 0.1), P(-0.2, 3.3, 1.6), P(10.0, 10.0, 10.0)}), P(0, 0, 50),
+                    1.0);
+  // At the map resolution: the voxel indices (key - 32768).
+  const auto cells = m.occupiedCells(res);
+  const std::vector<std::array<int32_t, 3>> expected = {{-1, 6, 3}, {0, 0, 0}, {1, 0, 0}, {20, 20, 20}};
+  CHECK(cells == expected);
+  // Coarser (1 m): voxel centres 0.25 and 0.75 share cell 0.
+  const auto coarse = m.occupiedCells(1.0);
+  const std::vector<std::array<int32_t, 3>> expected_coarse = {{-1, 3, 1}, {0, 0, 0}, {10, 10, 10}};
+  CHECK(coarse == expected_coarse);
+  // Finer (0.25 m): 8 cells per voxel.
+  CHECK(m.occupiedCells(0.25).size() == 32);
+  const std::string path = tempPath("occupied.npy");
+  CHECK(m.exportOccupied(path, res, "map") == 4);
+  CHECK(readNpy(path) == expected);
+  std::ifstream json(path + ".json");
+  std::string text((std::istreambuf_iterator<char>(json)), std::istreambuf_iterator<char>());
+  CHECK(text.find("\"count\": 4") != std::string::npos && text.find("\"resolution_m\": 0.5") != std::string::npos);
+  std::remove(path.c_str());
+  std::remove((path + ".json").c_str());
+  checkThrows([&] { m.occupiedCells(0.0); }, "zero resolution");
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Filtering and bad input
+
+TEST(filters_drop_bad_points_and_count_them) {
+  MapperConfig c = config(Backend::kOctomap, 0.5, InsertMode::kSurface);
+  c.filter.min_z_m = -1.0;
+  c.filter.max_z_m = 30.0;
+  c.filter.min_range_m = 1.0;
+  Mapper m(c);
+  RigidTransform tf;  // identity rotation, sensor at (0, 0, 10)
+  tf.t[2] = 10.0;
+  const float nan = std::nanf("");
+  const float inf = INFINITY;
+  ColoredPoints pts = cloud({P(0, 0, 5), P(nan, 0, 1), P(0, inf, 1), P(0, 0, 0.5), P(0, 0, -20), P(0, 0, 25), P(1e9, 0, 0)});
+  const InsertStats st = m.insert(pts, tf, 1.0);
+  CHECK(st.filter.points_in == 7);
+  CHECK(st.filter.nonfinite == 2);
+  CHECK(st.filter.too_close == 1);   // 0.5 m from the sensor
+  CHECK(st.filter.outside_box == 2);  // z = -10 and z = 35 in the map frame
+  CHECK(st.points_inserted == 2);
+  CHECK(st.points_out_of_map == 1);  // x = 1e9 m is outside the key cube
+  CHECK(voxels(m.map()).size() == 1);
+  // An empty cloud is a no-op.
+  const InsertStats empty = m.insert(ColoredPoints(), tf, 2.0);
+  CHECK(empty.points_inserted == 0 && m.framesInserted() == 1);
+}
+
+TEST(voxel_grid_filter_downsamples) {
+  ColoredPoints pts;
+  for (int i = 0; i < 10; ++i) {
+    pts.xyz.push_back(P(0.1 + 0.01 * i, 0.1, 0.1));
+    pts.rgb.push_back({static_cast<uint8_t>(10 * i), 0, 200});
+  }
+  pts.xyz.push_back(P(5.1, 0.1, 0.1));
+  pts.rgb.push_back({1, 2, 3});
+  FilterStats st;
+  voxelGridFilter(pts, 0.5, st);
+  CHECK(pts.size() == 2 && st.points_out == 2);
+  std::size_t first = pts.xyz[0](0) < 1.0 ? 0 : 1;
+  CHECK(std::fabs(pts.xyz[first](0) - 0.145f) < 1e-4);
+  CHECK(std::abs(pts.rgb[first][0] - 45) <= 1 && pts.rgb[first][2] == 200);
+  // Extents that would overflow PCL's int32 voxel index are left alone (and reported).
+  ColoredPoints huge = cloud({P(0, 0, 0), P(5000, 5000, 5000)});
+  FilterStats st2;
+  voxelGridFilter(huge, 0.01, st2);
+  CHECK(st2.voxel_grid_skipped && huge.size() == 2);
+}
+
+TEST(pipeline_with_voxel_grid_matches_map_frame_insert) {
+  // Mapper::insert on optical-frame points (transform + filters) equals inserting the transformed points.
+  const SmallFrames f = smallFrames(2);
+  Mapper a(config(Backend::kOctomap, 0.25, InsertMode::kFull));
+  Mapper b(config(Backend::kOctomap, 0.25, InsertMode::kFull));
+  for (std::size_t i = 0; i < 2; ++i) {
+    a.insert(f.optical[i], f.poses[i], 1.0 + i);
+    b.insertMapPoints(f.map_points[i], f.poses[i].origin(), 1.0 + i);
+  }
+  checkSameVoxels(a.map(), b.map());
+  MapperConfig c = config(Backend::kOctomap, 0.25, InsertMode::kSurface);
+  c.filter.voxel_leaf_m = 1.0;
+  Mapper d(c);
+  const InsertStats st = d.insert(f.optical[0], f.poses[0], 1.0);
+  CHECK(st.points_inserted < st.filter.points_in && st.points_inserted > 100);
+}
+
+TEST(config_validation) {
+  auto bad = [](const std::function<void(MapperConfig&)>& edit) {
+    MapperConfig c;
+    edit(c);
+    checkThrows([&] { c.validate(); }, "invalid config");
+  };
+  bad([](MapperConfig& c) { c.resolution_m = 0.0; });
+  bad([](MapperConfig& c) { c.resolution_m = std::nan(""); });
+  bad([](MapperConfig& c) { c.sensor.hit = 0.4; });
+  bad([](MapperConfig& c) { c.sensor.miss = 0.6; });
+  bad([](MapperConfig& c) { c.sensor.clamp_max = 1.0; });
+  bad([](MapperConfig& c) { c.truncation_m = -1.0; });
+  bad([](MapperConfig& c) { c.filter.min_z_m = 5.0; c.filter.max_z_m = 1.0; });
+  bad([](MapperConfig& c) { c.threads = 0; });
+  checkThrows([] { insertModeFromString("fast"); }, "mode name");
+  checkThrows([] { backendFromString("voxblox"); }, "backend name");
+  MapperConfig ok;
+  ok.validate();
+}
+
+}  // namespace
+
+/// Sample outputs for the Python readers' tests (tests/unit/map_server): a full-mode octree map of three small
+/// frames as raw binary message data, a .bt file and exported cells at 0.25 m and 1 m.
+int writeSample(const std::string& dir) {
+  Mapper m = filledMapper(Backend::kOctomap, InsertMode::kFull);
+  const auto& octree = dynamic_cast<const OctreeMap&>(m.map());
+  std::ostringstream bin;
+  octree.writeBinaryData(bin);
+  writeFileAtomically(dir + "/sample_binary.bin", bin.str());
+  m.save(dir + "/sample.bt");
+  m.exportOccupied(dir + "/sample_occupied.npy", 0.25, "map");
+  m.exportOccupied(dir + "/sample_occupied_1m.npy", 1.0, "map");
+  std::size_t occupied = 0;
+  std::size_t free_voxels = 0;
+  m.map().forEachLeaf(
+      [&](const Leaf& l) {
+        const std::size_t v = static_cast<std::size_t>(l.size) * l.size * l.size;
+        (m.map().isOccupied(l.state.log_odds) ? occupied : free_voxels) += v;
+      },
+      false);
+  std::cout << "{\"resolution_m\": 0.25, \"occupied_voxels\": " << occupied << ", \"free_voxels\": " << free_voxels
+            << ", \"leaves\": " << m.map().leafCount() << "}" << std::endl;
+  return 0;
+}
+
+int main(int argc, char** argv) {
+  if (argc == 3 && std::string(argv[1]) == "--write-sample") return writeSample(argv[2]);
+  std::vector<std::string> names;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--list") {
+      for (const auto& [name, fn] : registry()) std::cout << name << "\n";
+      return 0;
+    }
+    if (a == "--all") {
+      for (const auto& [name, fn] : registry()) names.push_back(name);
+    } else {
+      names.push_back(a);
+    }
+  }
+  if (names.empty()) {
+    std::cerr << "usage: map_core_tests --list | --all | NAME...\n";
+    return 2;
+  }
+  int failed = 0;
+  for (const std::string& name : names) {
+    auto it = registry().find(name);
+    if (it == registry().end()) {
+      std::cerr << "unknown test " << name << "\n";
+      return 2;
+    }
+    try {
+      it->second();
+      std::cout << "PASS " << name << std::endl;
+    } catch (const std::exception& e) {
+      std::cout << "FAIL " << name << ": " << e.what() << std::endl;
+      ++failed;
+    }
+  }
+  return failed == 0 ? 0 : 1;
+}

@@ -1,0 +1,58 @@
+// A deterministic synthetic world and a CPU depth camera, for the core tests and the benchmark while no
+// rendered frames are given: rolling terrain, box buildings and trees rasterised into a height/colour map,
+// and a pinhole camera (optical frame: z forward, x right, y down) ray-marched against it.
+#pragma once
+
+#include <uav_mapping/cloud_filter.h>
+#include <uav_mapping/frame_update.h>
+
+#include <cstdint>
+#include <vector>
+
+namespace uav_mapping {
+namespace synthetic {
+
+struct WorldOptions {
+  double half_size_m = 300.0;  // world covers [-half, half]^2
+  double raster_m = 0.25;      // height/colour raster cell
+  uint32_t seed = 7;
+  double building_density = 1.0;  // buildings per 10,000 m^2
+  double tree_density = 6.0;      // trees per 10,000 m^2
+};
+
+class World {
+ public:
+  explicit World(const WorldOptions& options);
+  /// Surface height (metres, terrain + objects) and colour at (x, y); outside the world: terrain only.
+  float height(double x, double y) const;
+  void color(double x, double y, uint8_t rgb[3]) const;
+  /// Smooth terrain alone (no objects), defined everywhere.
+  static double terrain(double x, double y);
+  double halfSize() const { return opt_.half_size_m; }
+
+ private:
+  std::size_t cell(double x, double y, bool& inside) const;
+  WorldOptions opt_;
+  int n_ = 0;
+  std::vector<float> height_;
+  std::vector<uint8_t> rgb_;
+};
+
+struct Camera {
+  int width = 640;
+  int height = 480;
+  double hfov_deg = 90.0;
+  double max_range_m = 300.0;  // rays without a surface closer than this return no point
+};
+
+/// A nadir-looking camera pose: optical z down, x east, y south, at (x, y) and `agl_m` above the surface.
+RigidTransform nadirPose(const World& world, double x, double y, double agl_m);
+
+/// Renders one frame: points in the optical frame (finite only, like the sim bridge's clouds) with colours.
+ColoredPoints render(const World& world, const Camera& camera, const RigidTransform& map_from_optical, int threads);
+
+/// Transforms optical-frame points to the map frame.
+ColoredPoints toMap(const ColoredPoints& optical, const RigidTransform& map_from_optical);
+
+}  // namespace synthetic
+}  // namespace uav_mapping
