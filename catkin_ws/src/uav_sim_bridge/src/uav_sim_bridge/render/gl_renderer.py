@@ -301,6 +301,8 @@ class Renderer:
         eye = t_map_optical.translation_m
         gap = np.maximum(np.abs(self._tile_center[vis] - eye) - self._tile_extent[vis], 0.0)
         far = np.linalg.norm(gap, axis=1) > self.settings.lod_distance_m
+        order = np.argsort(np.linalg.norm(gap, axis=1), kind="stable")  # front to back: early-z
+        vis, far = vis[order], far[order]
         first = np.where(far, self._far_first[vis], self._near_first[vis])
         count = np.where(far, self._far_count[vis], self._near_count[vis])
         keep = count > 0
