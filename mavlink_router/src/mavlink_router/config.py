@@ -94,6 +94,8 @@ class UdpEndpointConfig:
     port: int
     mode: UdpMode
     options: EndpointOptions = field(default_factory=EndpointOptions)
+    coalesce: bool = True
+    """Pack frames routed together to this endpoint into one datagram (up to 1400 bytes)."""
 
 
 @dataclass(frozen=True)
@@ -518,7 +520,7 @@ def _general(section: _Section | None) -> GeneralConfig:
 
 
 def _udp(section: _Section, general: GeneralConfig, taken_client_ports: list[tuple[str, int]]) -> UdpEndpointConfig:
-    r = _Reader(section, ("Address", "Mode", "Port", "Filter", *_COMMON_KEYS))
+    r = _Reader(section, ("Address", "Mode", "Port", "Filter", "Coalesce", *_COMMON_KEYS))
     address = r.require("Address", _parse_address, "the IP to send to (Normal) or to bind (Server)")
     mode = r.require("Mode", _parse_udp_mode, "Normal or Server")
     port = r.get("Port", _PORT, 0)
@@ -532,7 +534,8 @@ def _udp(section: _Section, general: GeneralConfig, taken_client_ports: list[tup
     no_ids: frozenset[int] = frozenset()
     legacy = r.get("Filter", _MSG_ID_LIST, no_ids)  # mavlink-routerd's old name of AllowMsgIdOut
     options = _options(r, general, legacy)
-    return UdpEndpointConfig(section.name, address, port, mode, options)
+    coalesce = r.get("Coalesce", _parse_bool, True)
+    return UdpEndpointConfig(section.name, address, port, mode, options, coalesce)
 
 
 def _tcp(section: _Section, general: GeneralConfig) -> TcpEndpointConfig:

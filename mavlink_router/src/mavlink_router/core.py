@@ -179,6 +179,10 @@ class RouterCore:
     def learned(self, index: int) -> Learned:
         return self.routing.learned(index)
 
+    def pending_bytes(self, index: int) -> int:
+        """Bytes of endpoint ``index`` held back waiting for the rest of a frame."""
+        return self._eps[index].parser.pending_bytes
+
     def reset_stream(self, index: int) -> None:
         """Drop a partial frame of a stream endpoint (after a reconnect)."""
         self._eps[index].parser.reset()

@@ -26,13 +26,11 @@ import os
 import socket
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 from mavlink_router.config import TcpEndpointConfig, UartEndpointConfig, UdpEndpointConfig, UdpMode
+from mavlink_router.core import EndpointStats
 from mavlink_router.errors import SerialUnavailableError
-
-if TYPE_CHECKING:
-    from mavlink_router.core import EndpointStats
 
 __all__ = [
     "READ_BUDGET",
@@ -44,6 +42,7 @@ __all__ = [
     "UartEndpoint",
     "UdpEndpoint",
     "check_serial_available",
+    "pack_datagrams",
 ]
 
 _LOG = logging.getLogger("mavlink_router.endpoints")
@@ -62,6 +61,33 @@ FIRST_RETRY_S = 0.25
 UART_BAUD_CYCLE_S = 5.0
 
 
+MAX_DATAGRAM_BYTES = 1400
+"""Frames for one UDP destination are packed into datagrams up to this size (no IP fragmentation)."""
+
+
+def pack_datagrams(frames: list[bytes], limit: int = MAX_DATAGRAM_BYTES) -> list[tuple[bytes, int]]:
+    """Group consecutive frames into ``(datagram, frame_count)`` of at most ``limit`` bytes.
+
+    MAVLink parsers (pymavlink, MAVSDK, QGroundControl, MAVProxy, the C library)
+    read a UDP datagram as a byte stream, so several whole frames in one datagram
+    are parsed exactly like separate datagrams; this saves system calls when a
+    burst is routed to the same place. A frame is never split.
+    """
+    out: list[tuple[bytes, int]] = []
+    chunk: list[bytes] = []
+    size = 0
+    for frame in frames:
+        if chunk and size + len(frame) > limit:
+            out.append((b"".join(chunk), len(chunk)))
+            chunk = []
+            size = 0
+        chunk.append(frame)
+        size += len(frame)
+    if chunk:
+        out.append((b"".join(chunk) if len(chunk) > 1 else chunk[0], len(chunk)))
+    return out
+
+
 class Timer(Protocol):
     def cancel(self) -> None: ...
 
@@ -76,6 +102,7 @@ class Host(Protocol):
     def monotonic(self) -> float: ...
     def connection_lost(self, endpoint: Endpoint) -> None: ...
     def reset_stream(self, slot: int) -> None: ...
+    def mark_dirty(self, endpoint: Endpoint) -> None: ...
 
 
 def _family(address: str) -> tuple[socket.AddressFamily, str]:
@@ -108,7 +135,7 @@ class Endpoint(abc.ABC):
         self.name = name
         self.host = host
         self.slot = -1
-        self.stats: EndpointStats | None = None
+        self.stats = EndpointStats()  # replaced by the core's record in bind_slot()
         self.connected = False
         self.last_error = ""
 
@@ -126,7 +153,11 @@ class Endpoint(abc.ABC):
 
     @abc.abstractmethod
     def send(self, frame: bytes, source: int) -> None:
-        """Queue or write one frame (never blocks, never raises)."""
+        """Collect one frame for :meth:`flush` (never blocks, never raises)."""
+
+    @abc.abstractmethod
+    def flush(self) -> None:
+        """Write what :meth:`send` collected since the last flush (the host calls it after each event)."""
 
     @abc.abstractmethod
     def close(self) -> None:
@@ -139,9 +170,7 @@ class Endpoint(abc.ABC):
         return {"name": self.name, "type": self.kind, "address": self.describe(), "connected": self.connected}
 
     def _count_drop(self) -> None:
-        stats = self.stats
-        if stats is not None:
-            stats.tx_drops += 1
+        self.stats.tx_drops += 1
 
 
 # --------------------------------------------------------------------------------------
@@ -163,6 +192,7 @@ class UdpEndpoint(Endpoint):
         self._peer = self._configured_peer
         self._sock: socket.socket | None = None
         self._last_rx_mono = 0.0
+        self._outbox: list[bytes] = []
         self._retry: Timer | None = None
 
     def describe(self) -> str:
@@ -205,6 +235,7 @@ class UdpEndpoint(Endpoint):
             return
         deliver = self.host.deliver
         slot = self.slot
+        received = False
         for _ in range(READ_BUDGET):
             try:
                 data, addr = sock.recvfrom(65535)
@@ -214,26 +245,39 @@ class UdpEndpoint(Endpoint):
                 _LOG.debug("%s: recvfrom: %s", self.name, err)
                 continue
             self._peer = addr
-            self._last_rx_mono = self.host.monotonic()
+            received = True
             deliver(slot, data)
+        if received:
+            self._last_rx_mono = self.host.monotonic()
 
     def send(self, frame: bytes, source: int) -> None:
+        box = self._outbox
+        if not box:
+            self.host.mark_dirty(self)
+        box.append(frame)
+
+    def flush(self) -> None:
+        frames = self._outbox
+        if not frames:
+            return
+        self._outbox = []
         peer = self._peer
         sock = self._sock
         if peer is None or sock is None:
             return  # a server nobody has talked to yet: nobody to send to (as mavlink-routerd)
-        try:
-            sock.sendto(frame, peer)
-        except OSError as err:
-            self._count_drop()
-            if not _nonfatal_send_error(err):
-                self.last_error = str(err)
-                _LOG.warning("%s: sendto %s: %s", self.name, peer, err)
-            return
         stats = self.stats
-        if stats is not None:
-            stats.tx_msgs += 1
-            stats.tx_bytes += len(frame)
+        datagrams = pack_datagrams(frames) if self.config.coalesce and len(frames) > 1 else [(f, 1) for f in frames]
+        for data, count in datagrams:
+            try:
+                sock.sendto(data, peer)
+            except OSError as err:
+                stats.tx_drops += count
+                if not _nonfatal_send_error(err):
+                    self.last_error = str(err)
+                    _LOG.warning("%s: sendto %s: %s", self.name, peer, err)
+                continue
+            stats.tx_msgs += count
+            stats.tx_bytes += len(data)
 
     def tick(self, now_mono: float) -> None:
         if (
@@ -257,6 +301,7 @@ class UdpEndpoint(Endpoint):
         if self._retry is not None:
             self._retry.cancel()
             self._retry = None
+        self.flush()
         if self._sock is not None:
             self.host.unwatch(self._sock)
             self._sock.close()
@@ -280,6 +325,8 @@ class StreamEndpoint(Endpoint):
         self._backlog = 0
         self._partial: memoryview | None = None
         self._write_wanted = False
+        self._outbox: list[bytes] = []
+        self._outbox_sources: list[int] = []
 
     # -- to be provided by subclasses -----------------------------------------------
     @abc.abstractmethod
@@ -296,39 +343,60 @@ class StreamEndpoint(Endpoint):
 
     # -- writing ---------------------------------------------------------------------
     def send(self, frame: bytes, source: int) -> None:
+        if not self.connected:
+            self._count_drop()
+            return
+        if not self._outbox:
+            self.host.mark_dirty(self)
+        self._outbox.append(frame)
+        self._outbox_sources.append(source)
+
+    def flush(self) -> None:
+        frames = self._outbox
+        if not frames:
+            return
+        sources = self._outbox_sources
+        self._outbox = []
+        self._outbox_sources = []
         stats = self.stats
         if not self.connected:
-            if stats is not None:
-                stats.tx_drops += 1
+            stats.tx_drops += len(frames)
             return
         if self._partial is None and not self._backlog:
+            data = frames[0] if len(frames) == 1 else b"".join(frames)
             try:
-                written = self._write(frame)
+                written = self._write(data)
             except (BlockingIOError, InterruptedError):
                 written = 0
             except OSError as err:
-                if stats is not None:
-                    stats.tx_drops += 1
+                stats.tx_drops += len(frames)
                 self._lost(f"write failed: {err}")
                 return
-            if stats is not None:
-                stats.tx_msgs += 1
-                stats.tx_bytes += len(frame)
-            if written < len(frame):
-                self._partial = memoryview(frame)[written:]
+            stats.tx_msgs += len(frames)
+            stats.tx_bytes += len(data)
+            if written < len(data):
+                self._partial = memoryview(data)[written:]
                 self._want_write(True)
             return
-        queue = self._queues.get(source)
-        if queue is None:
-            queue = self._queues[source] = deque()
-        if len(queue) >= self._queue_limit:
-            if stats is not None:
-                stats.tx_drops += 1
-            return
-        queue.append(frame)
-        self._backlog += 1
+        self._enqueue(frames, sources)
 
-    def _flush(self) -> None:
+    def _enqueue(self, frames: list[bytes], sources: list[int]) -> None:
+        """Backlogged: bounded per-source queues, drained round-robin when writable."""
+        stats = self.stats
+        limit = self._queue_limit
+        queues = self._queues
+        for frame, source in zip(frames, sources, strict=True):
+            queue = queues.get(source)
+            if queue is None:
+                queue = queues[source] = deque()
+            if len(queue) >= limit:
+                stats.tx_drops += 1
+                continue
+            queue.append(frame)
+            self._backlog += 1
+
+    def _drain(self) -> None:
+        """Writable: finish the partial write, then send queued frames round-robin by source."""
         stats = self.stats
         while True:
             partial = self._partial
@@ -359,9 +427,8 @@ class StreamEndpoint(Endpoint):
                     batch.append(frame)
                     size += len(frame)
                     self._backlog -= 1
-            if stats is not None:
-                stats.tx_msgs += len(batch)
-                stats.tx_bytes += size
+            stats.tx_msgs += len(batch)
+            stats.tx_bytes += size
             self._partial = memoryview(b"".join(batch))
 
     def _want_write(self, wanted: bool) -> None:
@@ -371,8 +438,9 @@ class StreamEndpoint(Endpoint):
 
     def _drop_pending(self) -> None:
         """Count everything still queued as dropped (on disconnect)."""
-        if self.stats is not None:
-            self.stats.tx_drops += self._backlog
+        self.stats.tx_drops += self._backlog + len(self._outbox)
+        self._outbox = []
+        self._outbox_sources = []
         self._queues.clear()
         self._backlog = 0
         self._partial = None
@@ -385,7 +453,7 @@ class StreamEndpoint(Endpoint):
     # -- reading ---------------------------------------------------------------------
     def _on_event(self, mask: int) -> None:
         if mask & EVENT_WRITE:
-            self._flush()
+            self._drain()
         if mask & EVENT_READ and self.connected:
             try:
                 data = self._read()
@@ -536,8 +604,9 @@ class TcpClientEndpoint(_SocketStream):
         if self._retry is not None:
             self._retry.cancel()
             self._retry = None
+        self.flush()
         if self.connected and (self._partial is not None or self._backlog):
-            self._flush()  # best effort, non-blocking
+            self._drain()  # best effort, non-blocking
         self._close_socket()
 
     def status(self) -> dict[str, object]:
@@ -576,8 +645,9 @@ class TcpConnection(_SocketStream):
         self.host.connection_lost(self)
 
     def close(self) -> None:
+        self.flush()
         if self.connected and (self._partial is not None or self._backlog):
-            self._flush()
+            self._drain()
         self._close_socket()
 
 
@@ -703,12 +773,12 @@ class UartEndpoint(StreamEndpoint):
 
     def _arm_baud_cycle(self) -> None:
         if len(self.config.bauds) > 1:
-            self._rx_at_baud = self.stats.rx_msgs if self.stats is not None else 0
+            self._rx_at_baud = self.stats.rx_msgs
             self._baud_timer = self.host.call_later(UART_BAUD_CYCLE_S, self._maybe_next_baud)
 
     def _maybe_next_baud(self) -> None:
         self._baud_timer = None
-        if not self.connected or self.stats is None:
+        if not self.connected:
             return
         if self.stats.rx_msgs > self._rx_at_baud:
             _LOG.info("%s: MAVLink heard at %d baud, keeping it", self.name, self.baud)
@@ -761,8 +831,9 @@ class UartEndpoint(StreamEndpoint):
         if self._retry is not None:
             self._retry.cancel()
             self._retry = None
+        self.flush()
         if self.connected and (self._partial is not None or self._backlog):
-            self._flush()
+            self._drain()
         self._close_port()
 
 

@@ -122,6 +122,7 @@ class Router:
         self._closed_stats: list[dict[str, object]] = []
         self._stop = False
         self._shut_down = False
+        self._dirty: list[Endpoint] = []
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -214,6 +215,16 @@ class Router:
     def reset_stream(self, slot: int) -> None:
         self.core.reset_stream(slot)
 
+    def mark_dirty(self, endpoint: Endpoint) -> None:
+        """``endpoint`` collected frames; it is flushed once the current event is handled."""
+        self._dirty.append(endpoint)
+
+    def _flush_dirty(self) -> None:
+        while self._dirty:
+            dirty, self._dirty = self._dirty, []
+            for endpoint in dirty:
+                endpoint.flush()
+
     def connection_lost(self, endpoint: Endpoint) -> None:
         """A dynamic endpoint closed: free its slot, keep its final numbers for the stats file."""
         if not endpoint.dynamic or endpoint.slot < 0 or self._slots[endpoint.slot] is not endpoint:
@@ -284,11 +295,15 @@ class Router:
             timeout = min(timeout, max(0.0, timers[0][0] - now))
         for key, mask in self._sel.select(timeout):
             key.data(mask)
+            if self._dirty:
+                self._flush_dirty()
         now = self._monotonic()
         while timers and timers[0][0] <= now:
             _, _, timer = heapq.heappop(timers)
             if not timer.cancelled:
                 timer.callback()
+        if self._dirty:
+            self._flush_dirty()
 
     def request_stop(self) -> None:
         """Ask the loop to stop (safe from a signal handler)."""
@@ -311,6 +326,7 @@ class Router:
             return
         self._shut_down = True
         _LOG.info("shutting down")
+        self._flush_dirty()
         for endpoint in list(self.endpoints):
             endpoint.close()
         if self.tcp_server is not None:

@@ -289,6 +289,14 @@ def test_sigterm_and_sigint_flush_the_log_and_stats(artifacts: Path) -> None:
         while (msg := reader.recv_match(type="SYSTEM_TIME")) is not None:
             times.append(msg.time_unix_usec)
         assert times == list(range(500))
+        dump = subprocess.run(
+            ["mavlogdump.py", "--types", "SYSTEM_TIME", str(tlog)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+        assert dump.stdout.count("SYSTEM_TIME {") == 500, "pymavlink's mavlogdump.py (MAVProxy's log tools) reads it"
         stats = read_stats(log_dir / "router-stats.json")
         assert stats["endpoints"][0]["rx_msgs"] == 500
         assert "shutting down" in proc.log_path.read_text()

@@ -75,12 +75,20 @@ class PymavlinkClient(threading.Thread):
 async def mavsdk_arm_disarm(port: int) -> None:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk  # noqa: PLC0415 - heavy import
     from mavsdk.asyncio.plugins.action import ActionAsync  # noqa: PLC0415
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync  # noqa: PLC0415
 
     cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)  # 245/190
     async with Mavsdk(cfg) as mavsdk:
         await mavsdk.add_any_connection(f"udpin://0.0.0.0:{port}")
         system = await mavsdk.first_autopilot(timeout_s=20.0)
         assert system is not None, "MAVSDK saw no autopilot through the router"
+
+        async def armable() -> None:  # the SITL denies arming until its GPS has a fix
+            async for health in TelemetryAsync(system).subscribe_health():
+                if health.is_armable:
+                    return
+
+        await asyncio.wait_for(armable(), timeout=30.0)
         action = ActionAsync(system)
         await action.arm()  # raises ActionError unless the ACK comes back to MAVSDK
         await action.disarm()
@@ -132,12 +140,12 @@ def test_sitl_router_mavsdk_mavproxy_pymavlink(artifacts: Path) -> None:
         asyncio.run(mavsdk_arm_disarm(ports["mavsdk"]))
 
         assert mavproxy.stdin is not None
-        mavproxy.stdin.write(b"arm throttle\n")
-        mavproxy.stdin.flush()
-        wait_until(lambda: "ARMED" in mavproxy_log.read_text(), 10, "MAVProxy arm ACK", 0.1)
-        mavproxy.stdin.write(b"disarm\n")
-        mavproxy.stdin.flush()
-        wait_until(lambda: "DISARMED" in mavproxy_log.read_text(), 10, "MAVProxy disarm ACK", 0.1)
+        ack_line = "Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED"
+        for number, command in enumerate((b"arm throttle\n", b"disarm\n"), start=1):
+            mavproxy.stdin.write(command)
+            mavproxy.stdin.flush()
+            acked = lambda n=number: mavproxy_log.read_text().count(ack_line) >= n  # noqa: E731
+            wait_until(acked, 10, f"MAVProxy ACK {number}", 0.1)
         time.sleep(1.0)
     finally:
         if client is not None:
@@ -164,7 +172,7 @@ def test_sitl_router_mavsdk_mavproxy_pymavlink(artifacts: Path) -> None:
 
     # MAVProxy: exactly its own two ARM_DISARM ACKs (MAVSDK's two were not routed to it).
     text = mavproxy_log.read_text()
-    assert text.count("Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED") == 2, text[-2000:]
+    assert text.count(ack_line) == 2, text[-2000:]
 
     # The router logged the whole session to a .tlog that pymavlink reads, with every client's traffic.
     [tlog] = log_dir.glob("*.tlog")
