@@ -132,6 +132,7 @@ RequireSigning = true
 Group = ground
 IgnoreCompId = 1
 Filter = 0
+Coalesce = false
 """,
         base_dir=tmp_path,
     )
@@ -153,6 +154,7 @@ Filter = 0
     assert o.require_signing
     assert o.signing_key_file == tmp_path / "keys" / "router.key"
     assert (o.group, o.ignore_comp_id, o.tx_queue_limit) == ("ground", True, 64)
+    assert not gcs.coalesce
 
 
 @pytest.mark.parametrize(
