@@ -22,6 +22,7 @@ __all__ = [
     "MatchingConfig",
     "PairingConfig",
     "PoseRefineConfig",
+    "PoseSmoothingConfig",
     "RectificationConfig",
     "SgbmMode",
 ]
@@ -225,6 +226,25 @@ class PoseRefineConfig:
 
 
 @dataclass(frozen=True)
+class PoseSmoothingConfig:
+    """Least-squares polynomial fit of the recent camera positions (see ``depth_motion``).
+
+    The relative translation of a pair is taken from the fit of the frames of the
+    last ``window_s`` seconds, unless the fit residual exceeds ``max_residual_m``.
+    """
+
+    enabled: bool = True
+    window_s: float = 3.0
+    degree: int = 3
+    max_residual_m: float = 0.3
+
+    def __post_init__(self) -> None:
+        _require(self.window_s > 0, "window_s must be > 0")
+        _require(1 <= self.degree <= 3, "degree must be in [1, 3]")
+        _require(self.max_residual_m > 0, "max_residual_m must be > 0")
+
+
+@dataclass(frozen=True)
 class EstimatorConfig:
     """Everything the depth estimator core needs."""
 
@@ -234,6 +254,7 @@ class EstimatorConfig:
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     filtering: FilterConfig = field(default_factory=FilterConfig)
     pose_refine: PoseRefineConfig = field(default_factory=PoseRefineConfig)
+    pose_smoothing: PoseSmoothingConfig = field(default_factory=PoseSmoothingConfig)
     cloud_stride_px: int = 1
 
     def __post_init__(self) -> None:

@@ -21,6 +21,7 @@ import numpy.typing as npt
 from uav_autonomy.core.depth_config import EstimatorConfig
 from uav_autonomy.core.depth_errors import DepthGeometryError
 from uav_autonomy.core.depth_matching import DisparitySearch, disparity_search, match_rectified
+from uav_autonomy.core.depth_motion import fit_trajectory
 from uav_autonomy.core.depth_pairing import PairGeometry, PairVerdict, initial_depth_prior_m, select_partner
 from uav_autonomy.core.depth_rectify import coverage_mask, rectify_pair, warp_to_rectified
 from uav_autonomy.core.depth_refine import RefineOutcome, refine_relative_pose
@@ -73,6 +74,7 @@ class DepthEstimate:
         refine: the pose refinement outcome (None when disabled).
         coverage: fraction of pixels with a depth.
         depth_prior_m: the prior used to size the search.
+        pose_smoothed: the relative translation came from the trajectory fit.
     """
 
     stamp_ns: int
@@ -83,6 +85,7 @@ class DepthEstimate:
     refine: RefineOutcome | None
     coverage: float
     depth_prior_m: float
+    pose_smoothed: bool = False
 
 
 @dataclass
@@ -159,14 +162,14 @@ class MotionStereoEstimator:
             return self._skip(frame, reason, pairing=selection.verdict, detail=f"pairing: {selection.verdict.value}")
         partner = selection.partner
         refine: RefineOutcome | None = None
-        partner_pose = partner.pose
+        partner_pose, smoothed = self._smoothed_partner_pose(frame, partner)
         if self.config.pose_refine.enabled:
             refine = refine_relative_pose(
                 self._gray_of(frame),
                 self._gray_of(partner),
                 camera=self.camera,
                 ref_pose=frame.pose,
-                partner_pose=partner.pose,
+                partner_pose=partner_pose,
                 config=self.config.pose_refine,
                 depth_prior_m=prior,
             )
@@ -191,11 +194,31 @@ class MotionStereoEstimator:
             refine=refine,
             coverage=n_valid / depth.size,
             depth_prior_m=prior,
+            pose_smoothed=smoothed,
         )
 
     def cloud(self, estimate: DepthEstimate, frame: ColorFrame) -> ColoredPoints:
         """The colored cloud of an estimate, in the reference optical frame."""
         return points_from_depth(estimate.depth_m, frame.rgb, self.camera, self.config.cloud_stride_px)
+
+    def _smoothed_partner_pose(self, frame: ColorFrame, partner: ColorFrame) -> tuple[CameraPose, bool]:
+        """The partner pose with the relative translation from the trajectory fit (if enabled and sound)."""
+        cfg = self.config.pose_smoothing
+        if not cfg.enabled:
+            return partner.pose, False
+        window_ns = int(cfg.window_s * 1e9)
+        recent = [f for f in self._history if 0 <= frame.stamp_ns - f.stamp_ns <= window_ns]
+        if partner not in recent:
+            return partner.pose, False
+        fit = fit_trajectory(
+            [(f.stamp_ns - frame.stamp_ns) * 1e-9 for f in recent],
+            np.array([f.pose.position_map_m for f in recent]),
+            cfg.degree,
+        )
+        if fit is None or fit.residual_rms_m > cfg.max_residual_m:
+            return partner.pose, False
+        rel = fit.at((partner.stamp_ns - frame.stamp_ns) * 1e-9) - fit.at(0.0)
+        return CameraPose(partner.pose.rotation_map_optical, frame.pose.position_map_m + rel), True
 
     def _depth_for_pair(
         self, frame: ColorFrame, partner: ColorFrame, partner_pose: CameraPose, prior_m: float
