@@ -19,7 +19,7 @@ def test_project_config_loads_strictly_and_matches_the_defaults() -> None:
     cfg = load_config(DepthConfig, REPO / "config" / "depth.yaml")
     assert cfg == DepthConfig()
     assert cfg.estimator.matching.mode is SgbmMode.SGBM_3WAY
-    assert cfg.estimator.filtering.lr_check is LrCheck.FULL
+    assert cfg.estimator.filtering.lr_check is LrCheck.INTERNAL
     assert math.isinf(cfg.evaluator.range_bands_m[-1])
 
 

@@ -181,7 +181,7 @@ class FilterConfig:
         min_depth_m, max_depth_m: depths outside this range are dropped.
     """
 
-    lr_check: LrCheck = LrCheck.FULL
+    lr_check: LrCheck = LrCheck.INTERNAL
     lr_max_diff_px: float = 1.0
     min_texture_std: float = 2.0
     texture_window_px: int = 7
