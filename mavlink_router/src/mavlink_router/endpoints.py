@@ -1,11 +1,15 @@
 """Endpoints: the sockets and serial ports the router reads and writes (shell).
 
 Every endpoint has a routing *slot* in :class:`~mavlink_router.core.RouterCore`
-and hands the bytes it reads to :meth:`Host.deliver`. Writing never blocks:
+and hands the bytes it reads to :meth:`Host.deliver`. Frames routed to an
+endpoint are collected by :meth:`Endpoint.send` and written by
+:meth:`Endpoint.flush`, which the host calls right after handling each event:
+one system call per destination per burst of input. Writing never blocks:
 
-* UDP: ``sendto`` on a non-blocking socket; if the kernel buffer is full the
-  frame is dropped and counted (UDP is lossy by nature; there is nothing to
-  retransmit).
+* UDP: ``sendto`` on a non-blocking socket, whole frames packed into datagrams of
+  up to 1400 bytes (``Coalesce``, on by default); if the kernel buffer is full
+  the frames are dropped and counted (UDP is lossy by nature; there is nothing
+  to retransmit).
 * Streams (TCP, serial): a frame is written directly when nothing is pending;
   otherwise it waits in a bounded queue *per source endpoint*, and the queues are
   drained round-robin when the socket is writable. A client that stops reading

@@ -294,7 +294,10 @@ class Router:
         if timers:
             timeout = min(timeout, max(0.0, timers[0][0] - now))
         for key, mask in self._sel.select(timeout):
-            key.data(mask)
+            try:
+                key.data(mask)
+            except OSError as err:  # an I/O error the endpoint did not expect: keep routing
+                _LOG.exception("I/O error while handling %s: %s", key.fileobj, err)
             if self._dirty:
                 self._flush_dirty()
         now = self._monotonic()
