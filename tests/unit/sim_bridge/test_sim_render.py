@@ -148,6 +148,27 @@ def test_culling_and_lod_do_not_change_near_content(default_world: World, defaul
         culled_only.close()
 
 
+def test_several_renderers_in_one_thread_keep_their_own_scenes(
+    flat_renderer: Renderer, default_renderer: Renderer, default_world: World
+) -> None:
+    pose = NADIR.optical_pose(RigidTransform.from_rpy([150.0, -60.0, float(default_world.height_at(150, -60)) + 40]))
+    a1 = default_renderer.render(NADIR, pose)
+    flat = flat_renderer.render(NADIR, pose)
+    a2 = default_renderer.render(NADIR, pose)
+    extra = Renderer(default_world)  # a new context becomes current on creation
+    try:
+        a3 = default_renderer.render(NADIR, pose)
+        b = extra.render(NADIR, pose)
+    finally:
+        extra.close()
+    a4 = default_renderer.render(NADIR, pose)
+    assert (flat.instance_id <= 1).all()  # the flat world has nothing but terrain
+    assert len(np.unique(a1.instance_id)) > 3
+    for other in (a2, a3, b, a4):
+        np.testing.assert_array_equal(other.instance_id, a1.instance_id)
+        np.testing.assert_array_equal(other.color_rgb, a1.color_rgb)
+
+
 def test_renderer_is_bound_to_its_thread(flat_renderer: Renderer) -> None:
     errors: list[BaseException] = []
 
@@ -166,6 +187,7 @@ def test_renderer_is_bound_to_its_thread(flat_renderer: Renderer) -> None:
 
 def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, artifacts: Path) -> None:
     """Writes color / depth / class / instance PNGs of both cameras at a few places, and an overview."""
+    frames: list[np.ndarray] = []
     for name, (xy, yaw) in zip(["home", "village_east", "village_west", "north"], POSES, strict=True):
         z = float(default_world.height_at(*xy)) + 50.0
         base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
@@ -178,6 +200,10 @@ def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, 
             )
             Image.fromarray(visualize.instance_image(f.instance_id)).save(artifacts / f"{name}_{cam.name}_instance.png")
             assert f.color_rgb.std() > 10  # textured, not a flat fill
+            frames.append(f.color_rgb)
+    for i in range(len(frames)):
+        for j in range(i + 1, len(frames)):
+            assert not np.array_equal(frames[i], frames[j]), "every view is different"
     overview = CameraModel.simple(1024, 768, 60.0)
     f = default_renderer.render(overview, look_at([0, -1050, 800], [0, 0, 0]))
     Image.fromarray(f.color_rgb).save(artifacts / "overview.png")

@@ -338,6 +338,10 @@ class Renderer:
             RenderError: called from a thread other than the creating one.
         """
         self._check_thread()
+        with self.ctx:  # make this renderer's context current (several renderers may share a thread)
+            return self._render(camera, t_map_optical)
+
+    def _render(self, camera: CameraModel, t_map_optical: RigidTransform) -> RenderedFrame:
         target = self._setup_camera(camera, t_map_optical)
         cmds = self._draw_commands(camera, t_map_optical)
         if len(cmds):
@@ -376,6 +380,12 @@ class Renderer:
             KeyError: an id is not a person or vehicle of this world.
         """
         self._check_thread()
+        with self.ctx:
+            return self._unoccluded(camera, t_map_optical, instance_ids)
+
+    def _unoccluded(
+        self, camera: CameraModel, t_map_optical: RigidTransform, instance_ids: list[int]
+    ) -> dict[int, int]:
         target = self._setup_camera(camera, t_map_optical)
         out: dict[int, int] = {}
         for iid in instance_ids:
@@ -389,7 +399,8 @@ class Renderer:
 
     def close(self) -> None:
         """Release every GL object and the context."""
-        for t in self._targets.values():
-            t.release()
-        self._targets.clear()
+        with self.ctx:
+            for t in self._targets.values():
+                t.release()
+            self._targets.clear()
         self.ctx.release()
