@@ -5,8 +5,9 @@ JSBSim's imperial units become SI: everything leaving it is metres, seconds,
 radians, newtons, volts and amperes, in NED / FRD frames.
 
 Motor commands are written every step into the F450's external ESC inputs
-(``fcs/cmd??_ext_nd``) with the model's own flight-control law disengaged, so
-the autopilot's mixer alone drives the four motors.
+(``fcs/cmd??_ext_nd``); the bundled model's flight control is a pass-through
+(see ``sitl/aircraft/README.md``), so the autopilot's mixer alone drives the
+four motors.
 """
 
 from __future__ import annotations
@@ -137,13 +138,35 @@ class JsbsimQuad:
         self._terrain_amsl_m = ground_alt_amsl_m
         _set_initial_conditions(fdm, lat_deg, lon_deg, ground_alt_amsl_m, self.ground_clearance_m, yaw_rad)
         pm = fdm.get_property_manager()
-        self._esc = []
-        for name in _ESC_INPUTS:
-            node = pm.get_node(name, False)
-            if node is None:
-                msg = f"aircraft {aircraft!r} has no property {name} (expected the F450's external ESC inputs)"
+
+        def node(name: str) -> jsbsim.FGPropertyNode:
+            found = pm.get_node(name, False)
+            if found is None:
+                msg = f"aircraft {aircraft!r} has no property {name}"
                 raise FdmError(msg)
-            self._esc.append(node)
+            return found
+
+        self._esc = [node(name) for name in _ESC_INPUTS]
+        # per-step reads go through property nodes (a string lookup costs several times more)
+        self._att = [node(n) for n in ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad")]
+        self._rates = [node(n) for n in ("velocities/p-rad_sec", "velocities/q-rad_sec", "velocities/r-rad_sec")]
+        self._current = [node(f"propulsion/engine[{i}]/current-amperes") for i in range(4)]
+        self._state_nodes = [
+            node(n)
+            for n in (
+                "position/lat-geod-deg",
+                "position/long-gc-deg",
+                "position/h-sl-ft",
+                "velocities/v-north-fps",
+                "velocities/v-east-fps",
+                "velocities/v-down-fps",
+                "accelerations/a-pilot-x-ft_sec2",
+                "accelerations/a-pilot-y-ft_sec2",
+                "accelerations/a-pilot-z-ft_sec2",
+                "position/h-agl-ft",
+                "accelerations/gravity-ft_sec2",
+            )
+        ]
         self._sim_time_s = 0.0
         self._last_throttle = (0.0, 0.0, 0.0, 0.0)
         self._last_voltage_v = motor_max_voltage_v
@@ -152,11 +175,12 @@ class JsbsimQuad:
     def step(self, duty: tuple[float, float, float, float], battery_voltage_v: float) -> None:
         """Apply ESC duty cycles (0..1) powered by ``battery_voltage_v`` and advance one ``dt``."""
         ratio = battery_voltage_v / self.motor_max_voltage_v
+        t0, t1, t2, t3 = duty[0] * ratio, duty[1] * ratio, duty[2] * ratio, duty[3] * ratio
         throttle = (
-            min(1.0, max(0.0, duty[0] * ratio)),
-            min(1.0, max(0.0, duty[1] * ratio)),
-            min(1.0, max(0.0, duty[2] * ratio)),
-            min(1.0, max(0.0, duty[3] * ratio)),
+            1.0 if t0 > 1.0 else (t0 if t0 > 0.0 else 0.0),
+            1.0 if t1 > 1.0 else (t1 if t1 > 0.0 else 0.0),
+            1.0 if t2 > 1.0 else (t2 if t2 > 0.0 else 0.0),
+            1.0 if t3 > 1.0 else (t3 if t3 > 0.0 else 0.0),
         )
         esc = self._esc
         esc[0].set_double_value(throttle[0])
@@ -182,39 +206,23 @@ class JsbsimQuad:
     # ------------------------------------------------------------------ reading
     def state(self, t_s: float) -> VehicleState:
         """Ground truth after the last step (SI, NED/FRD). Position is the CG's."""
-        f = self._fdm
-        phi, theta, psi = f["attitude/phi-rad"], f["attitude/theta-rad"], f["attitude/psi-rad"]
-        cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
-        cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
-        cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
-        q = (
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        )
+        q, rates = self.attitude_and_rates()
         if q[0] < 0.0:
             q = (-q[0], -q[1], -q[2], -q[3])
-        g = f["accelerations/gravity-ft_sec2"]
+        a = self._att
+        phi, theta, psi = a[0].get_double_value(), a[1].get_double_value(), a[2].get_double_value()
+        lat, lon, h_ft, vn, ve, vd, ax, ay, az, agl_ft, g = (n.get_double_value() for n in self._state_nodes)
         state = VehicleState(
             t_s=t_s,
-            lat_deg=f["position/lat-geod-deg"],
-            lon_deg=f["position/long-gc-deg"],
-            alt_amsl_m=f["position/h-sl-ft"] * FT_TO_M,
-            vel_ned_mps=(
-                f["velocities/v-north-fps"] * FT_TO_M,
-                f["velocities/v-east-fps"] * FT_TO_M,
-                f["velocities/v-down-fps"] * FT_TO_M,
-            ),
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_amsl_m=h_ft * FT_TO_M,
+            vel_ned_mps=(vn * FT_TO_M, ve * FT_TO_M, vd * FT_TO_M),
             q_wxyz=q,
             euler_rad=(phi, theta, _wrap_pi(psi)),
-            rates_frd_radps=(f["velocities/p-rad_sec"], f["velocities/q-rad_sec"], f["velocities/r-rad_sec"]),
-            specific_force_frd_mps2=(
-                f["accelerations/a-pilot-x-ft_sec2"] * FT_TO_M,
-                f["accelerations/a-pilot-y-ft_sec2"] * FT_TO_M,
-                f["accelerations/a-pilot-z-ft_sec2"] * FT_TO_M,
-            ),
-            height_above_ground_m=max(0.0, f["position/h-agl-ft"] * FT_TO_M - self.ground_clearance_m),
+            rates_frd_radps=rates,
+            specific_force_frd_mps2=(ax * FT_TO_M, ay * FT_TO_M, az * FT_TO_M),
+            height_above_ground_m=max(0.0, agl_ft * FT_TO_M - self.ground_clearance_m),
             gravity_mps2=g * FT_TO_M,
         )
         if not all(math.isfinite(v) for v in (state.alt_amsl_m, *state.vel_ned_mps, *state.q_wxyz)):
@@ -224,18 +232,19 @@ class JsbsimQuad:
 
     def attitude_and_rates(self) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
         """The cheap per-step subset: quaternion (w, x, y, z) body->NED and FRD body rates."""
-        f = self._fdm
-        phi, theta, psi = f["attitude/phi-rad"], f["attitude/theta-rad"], f["attitude/psi-rad"]
-        cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
-        cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
-        cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+        a, r = self._att, self._rates
+        phi, theta, psi = a[0].get_double_value(), a[1].get_double_value(), a[2].get_double_value()
+        cos, sin = math.cos, math.sin
+        cr, sr = cos(0.5 * phi), sin(0.5 * phi)
+        cp, sp = cos(0.5 * theta), sin(0.5 * theta)
+        cy, sy = cos(0.5 * psi), sin(0.5 * psi)
         q = (
             cr * cp * cy + sr * sp * sy,
             sr * cp * cy - cr * sp * sy,
             cr * sp * cy + sr * cp * sy,
             cr * cp * sy - sr * sp * cy,
         )
-        return q, (f["velocities/p-rad_sec"], f["velocities/q-rad_sec"], f["velocities/r-rad_sec"])
+        return q, (r[0].get_double_value(), r[1].get_double_value(), r[2].get_double_value())
 
     def motors(self) -> tuple[MotorReading, ...]:
         """Per-motor throttle, rpm, thrust, current and applied voltage after the last step."""
@@ -255,14 +264,13 @@ class JsbsimQuad:
 
     def motor_electrical_power_w(self) -> float:
         """Sum over the motors of applied voltage times motor current (W)."""
-        f = self._fdm
-        vmax = self.motor_max_voltage_v
+        c = self._current
         thr = self._last_throttle
-        return vmax * (
-            thr[0] * max(0.0, f["propulsion/engine[0]/current-amperes"])
-            + thr[1] * max(0.0, f["propulsion/engine[1]/current-amperes"])
-            + thr[2] * max(0.0, f["propulsion/engine[2]/current-amperes"])
-            + thr[3] * max(0.0, f["propulsion/engine[3]/current-amperes"])
+        return self.motor_max_voltage_v * (
+            thr[0] * max(0.0, c[0].get_double_value())
+            + thr[1] * max(0.0, c[1].get_double_value())
+            + thr[2] * max(0.0, c[2].get_double_value())
+            + thr[3] * max(0.0, c[3].get_double_value())
         )
 
     @property
@@ -289,7 +297,7 @@ def _ground_clearance_m(fdm: jsbsim.FGFDMExec, aircraft: str) -> float:
 def _set_initial_conditions(  # noqa: PLR0917
     fdm: jsbsim.FGFDMExec, lat_deg: float, lon_deg: float, ground_alt_amsl_m: float, clearance_m: float, yaw_rad: float
 ) -> None:
-    """Resting on the ground at home, engines running (at zero throttle), JSBSim's own FCS off."""
+    """Resting on the ground at home, engines running (at zero throttle)."""
     fdm["ic/lat-geod-deg"] = lat_deg
     fdm["ic/long-gc-deg"] = lon_deg
     fdm["ic/terrain-elevation-ft"] = ground_alt_amsl_m / FT_TO_M
@@ -301,8 +309,6 @@ def _set_initial_conditions(  # noqa: PLR0917
         if not fdm.run_ic():
             msg = "JSBSim run_ic() failed"
             raise FdmError(msg)
-    fdm["fcs/ScasEngage"] = 0.0
-    fdm["fcs/throttle-cmd-norm"] = 0.0
     for i in range(4):
         fdm[f"propulsion/engine[{i}]/set-running"] = 1
 

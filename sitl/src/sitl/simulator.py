@@ -54,6 +54,8 @@ class Simulator:
     """Owns the vehicle, the links and the clock. ``run()`` until ``stop()``."""
 
     POLL_INTERVAL_UNPACED_S = 0.002
+    # telemetry frames are batched into datagrams and flushed at least this often (wall clock)
+    FLUSH_INTERVAL_S = 0.002
 
     def __init__(
         self, cfg: SitlConfig, *, reset_params: bool = False, clock: Callable[[], float] = time.monotonic
@@ -84,6 +86,7 @@ class Simulator:
         self._last_stats = clock()
         self._idle_s = 0.0
         self._load_window_start = clock()
+        self._last_flush = clock()
 
     # ------------------------------------------------------------------ set-up
     def _load_params(self, params: ParamTable, *, reset: bool) -> None:
@@ -195,6 +198,14 @@ class Simulator:
         if not events:
             return
         wall = self._clock()
+        try:
+            self._dispatch(events, wall)
+        finally:
+            gateway.flush()
+
+    def _dispatch(self, events: list[tuple[selectors.SelectorKey, int]], wall: float) -> None:
+        gateway = self.gateway
+        assert gateway is not None
         for key, _ in events:
             kind, name = key.data
             if kind == "udp":
@@ -225,6 +236,9 @@ class Simulator:
         self.vehicle.step(wall_s)
         assert self.gateway is not None
         self.gateway.after_step(wall_s)
+        if wall_s - self._last_flush >= self.FLUSH_INTERVAL_S:
+            self.gateway.flush()
+            self._last_flush = wall_s
         if self.sim_link is not None:
             self.sim_link.after_step()
 
@@ -286,6 +300,8 @@ class Simulator:
     def _run_lockstep(self, max_sim_time_s: float | None) -> None:
         sim = self.sim_link
         assert sim is not None
+        gateway = self.gateway
+        assert gateway is not None
         end = math.inf if max_sim_time_s is None else self.vehicle.t_s + max_sim_time_s
         while not self._stop.is_set() and self.vehicle.t_s < end - 1e-9:
             self.poll(0.05 if not sim.grants else 0.0)
@@ -298,6 +314,7 @@ class Simulator:
                 for _ in range(grant.steps):
                     self._step(now)
                 sim.send_state()
+                gateway.flush()
                 sim.ack_grant(grant)
             if not grants:
                 self._wall_heartbeat(now)
@@ -349,6 +366,8 @@ class Simulator:
         return out
 
     def close(self) -> None:
+        if self.gateway is not None:
+            self.gateway.flush()
         for link, _ in self.links.values():
             link.close()
         if self.sim_link is not None:

@@ -116,6 +116,7 @@ class Vehicle:
         self._esc_eff = b.esc_efficiency
         self._avionics_w = b.avionics_power_w
         self._vmax = phys.motor_max_voltage_v
+        self._power_sum_w = 0.0
 
     def truth(self) -> VehicleState:
         """Ground truth at the present step (cached)."""
@@ -145,10 +146,15 @@ class Vehicle:
         duty = ap.inner_update(q, rates, self.dt_s, self._vmax / max(voltage, 1.0))
         self.duty = duty
         self.fdm.step(duty, voltage)
-        power = self.fdm.motor_electrical_power_w() / self._esc_eff + self._avionics_w
-        battery.step(power, self.dt_s)
+        # the electrical power of every step is integrated; the battery state (and its terminal
+        # voltage) advances once per outer-loop period with the mean power of those steps
+        self._power_sum_w += self.fdm.motor_electrical_power_w()
         self.steps += 1
         self.t_s = self.steps * self.dt_s
+        if self.steps % self.divider == 0:
+            mean_w = self._power_sum_w / self.divider / self._esc_eff + self._avionics_w
+            battery.step(mean_w, self.dt_s * self.divider)
+            self._power_sum_w = 0.0
 
     TERRAIN_PENETRATION_M = 0.01
 

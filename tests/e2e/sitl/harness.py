@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import socket
+import struct
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -180,8 +181,6 @@ class Gcs:
         )
 
     def set_param(self, name: str, value: float, *, integer: bool = False) -> None:
-        import struct
-
         wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if integer else float(value)
         ptype = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32
         self.conn.mav.param_set_send(1, 1, name.encode(), wire, ptype)

@@ -54,9 +54,10 @@ class FakeLink(MavLink):
     def __init__(self, name: str = "gcs", signing_key: bytes | None = None) -> None:
         super().__init__(name, system_id=1, component_id=1, signing_key=signing_key, link_id=1)
         self.sent: list[tuple[Any, Hashable | None]] = []
+        self.frames: list[bytes] = []
 
     def send(self, msg: Any, route: Hashable | None = None) -> None:
-        self.pack(msg)
+        self.frames.append(self.pack(msg))
         self.sent.append((msg, route))
 
     def close(self) -> None:
@@ -67,6 +68,7 @@ class FakeLink(MavLink):
 
     def clear(self) -> None:
         self.sent.clear()
+        self.frames.clear()
 
 
 class Client:

@@ -93,8 +93,8 @@ def test_command_ack_semantics(rig: Rig) -> None:
     ack = rig.cmd(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED
     assert (ack.target_system, ack.target_component) == (255, 190)
-    assert ack._header.srcSystem == 1
-    assert ack._header.srcComponent == 1
+    wire = mavlink.MAVLink(None).parse_buffer(rig.gcs.frames[0])[0]
+    assert (wire.get_type(), wire.get_srcSystem(), wire.get_srcComponent()) == ("COMMAND_ACK", 1, 1)
     version = rig.gcs.of_type("AUTOPILOT_VERSION")[0]
     assert version.capabilities == AUTOPILOT_CAPABILITIES
     assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT

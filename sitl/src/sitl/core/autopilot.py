@@ -110,6 +110,7 @@ class Autopilot:
         self.wall_scale = 1.0
         self.statustexts: list[tuple[MavSeverity, str]] = []
         self.heartbeat_due = False
+        self.status_version = 0
         self.mission_current_changed = False
         self.t_s = 0.0
         self.wall_s = 0.0
@@ -194,6 +195,18 @@ class Autopilot:
         self.mission_progress.reached.clear()
         return out
 
+    def _status_changed(self) -> None:
+        """Mode, arming, landed or crash state changed: announce it (HEARTBEAT now)."""
+        self.heartbeat_due = True
+        self.status_version += 1
+
+    @property
+    def events_pending(self) -> bool:
+        """Whether the shell has anything to send besides the periodic streams."""
+        return bool(
+            self.heartbeat_due or self.statustexts or self.mission_progress.reached or self.mission_current_changed
+        )
+
     def say(self, severity: MavSeverity, text: str) -> None:
         self.statustexts.append((severity, text))
 
@@ -232,7 +245,7 @@ class Autopilot:
         self._pos_ctrl.reset(self.est.vel_ned_mps if self.est else (0.0, 0.0, 0.0))
         self._rate_ctrl.reset()
         self._task = None
-        self.heartbeat_due = True
+        self._status_changed()
         self.say(MavSeverity.INFO, "Armed by external command" + (" (forced)" if force else ""))
         return MavResult.ACCEPTED
 
@@ -264,7 +277,7 @@ class Autopilot:
         self.armed = False
         self._thrust = 0.0
         self._idle = True
-        self.heartbeat_due = True
+        self._status_changed()
         self.say(MavSeverity.INFO, text)
         if self.on_disarm is not None:
             self.on_disarm()
@@ -285,7 +298,7 @@ class Autopilot:
     def _enter_mode(self, mode: FlightMode) -> None:
         self.mode = mode
         self._task = None
-        self.heartbeat_due = True
+        self._status_changed()
         if mode is FlightMode.AUTO_MISSION:
             self._restart_mission_if_new()
             self.mission_current_changed = True
@@ -428,7 +441,7 @@ class Autopilot:
         self.armed = False
         self._thrust = 0.0
         self._idle = True
-        self.heartbeat_due = True
+        self._status_changed()
         self.say(
             MavSeverity.EMERGENCY,
             f"Collision (world object {world_id}): crashed, disarmed",
@@ -468,7 +481,7 @@ class Autopilot:
             height_above_ground_m=est.full.height_above_ground_m,
         )
         if landed != was_landed:
-            self.heartbeat_due = True
+            self._status_changed()
             if self.armed:
                 self.say(MavSeverity.INFO, "Landing detected" if landed else "Takeoff detected")
             self._landed_since_s = t_s

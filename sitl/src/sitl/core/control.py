@@ -409,27 +409,37 @@ class Mixer:
 
     def mix(self, thrust: float, torque: Vec3, voltage_scale: float) -> tuple[float, float, float, float]:
         a = self.authority
+        idle = self.idle_thrust
         roll, pitch, yaw = torque[0] * a, torque[1] * a, torque[2] * a
-        rp = [roll * r + pitch * p for r, p in zip(self.ROLL, self.PITCH, strict=True)]
-        spread = max(rp) - min(rp)
-        if spread > 1.0 - self.idle_thrust:
-            scale = (1.0 - self.idle_thrust) / spread
-            rp = [v * scale for v in rp]
-        lo, hi = min(rp), max(rp)
-        thrust = min(max(thrust, self.idle_thrust - lo), 1.0 - hi)
-        # yaw: the largest magnitude (up to the request) that keeps every motor in range
-        limit = abs(yaw)
-        for v, s in zip(rp, self.YAW, strict=True):
-            base = thrust + v
-            room = (1.0 - base) if s * yaw > 0.0 else (base - self.idle_thrust)
-            limit = min(limit, max(0.0, room))
-        yaw = math.copysign(limit, yaw)
-        out = []
+        # roll/pitch part per motor (ROLL/PITCH signs written out: this runs every step)
+        r0, r1, r2, r3 = -roll + pitch, roll - pitch, roll + pitch, -roll - pitch
+        lo = min(r0, r1, r2, r3)
+        hi = max(r0, r1, r2, r3)
+        spread = hi - lo
+        if spread > 1.0 - idle:
+            scale = (1.0 - idle) / spread
+            r0, r1, r2, r3 = r0 * scale, r1 * scale, r2 * scale, r3 * scale
+            lo, hi = lo * scale, hi * scale
+        thrust = min(max(thrust, idle - lo), 1.0 - hi)
+        # yaw (YAW = +, +, -, -): the largest magnitude up to the request that keeps every motor in range
+        b0, b1, b2, b3 = thrust + r0, thrust + r1, thrust + r2, thrust + r3
+        if yaw > 0.0:
+            yaw = min(yaw, 1.0 - b0, 1.0 - b1, b2 - idle, b3 - idle)
+            yaw = max(yaw, 0.0)
+        elif yaw < 0.0:
+            yaw = -min(-yaw, b0 - idle, b1 - idle, 1.0 - b2, 1.0 - b3)
+            yaw = min(yaw, 0.0)
         inv = self._inv_exp
-        for v, s in zip(rp, self.YAW, strict=True):
-            t = min(1.0, max(self.idle_thrust, thrust + v + s * yaw))
-            out.append(min(1.0, t**inv * voltage_scale))
-        return out[0], out[1], out[2], out[3]
+        o0 = min(1.0, max(idle, b0 + yaw))
+        o1 = min(1.0, max(idle, b1 + yaw))
+        o2 = min(1.0, max(idle, b2 - yaw))
+        o3 = min(1.0, max(idle, b3 - yaw))
+        return (
+            min(1.0, o0**inv * voltage_scale),
+            min(1.0, o1**inv * voltage_scale),
+            min(1.0, o2**inv * voltage_scale),
+            min(1.0, o3**inv * voltage_scale),
+        )
 
     def idle(self, voltage_scale: float) -> tuple[float, float, float, float]:
         d = min(1.0, self.idle_thrust**self._inv_exp * voltage_scale)

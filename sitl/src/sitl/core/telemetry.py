@@ -6,6 +6,7 @@ factor of 10 a 50 Hz stream leaves the process 500 times per wall second.
 
 from __future__ import annotations
 
+import heapq
 import math
 
 from sitl.core.protocol import MavResult, MsgId
@@ -76,14 +77,16 @@ _ON_REQUEST_ONLY = frozenset({MsgId.AUTOPILOT_VERSION, MsgId.GPS_GLOBAL_ORIGIN})
 
 
 class StreamScheduler:
-    """Which messages are due on one link, in simulation time."""
+    """Which messages are due on one link, in simulation time (a heap of next send times)."""
 
     def __init__(self, defaults_hz: dict[int, float], max_rate_hz: float) -> None:
         self._defaults = dict(defaults_hz)
         self._max_rate_hz = max_rate_hz
         self._period_s: dict[int, float] = {m: 1.0 / r for m, r in defaults_hz.items() if r > 0.0}
-        self._next_s: dict[int, float] = dict.fromkeys(self._period_s, 0.0)
-        self._next_min_s = 0.0
+        self._generation: dict[int, int] = dict.fromkeys(self._period_s, 0)
+        # (next time, stable order, message id, generation); stale generations are skipped
+        self._heap: list[tuple[float, int, int, int]] = [(0.0, i, m, 0) for i, m in enumerate(sorted(self._period_s))]
+        heapq.heapify(self._heap)
 
     def set_interval(self, msg_id: int, interval_us: float, t_s: float) -> MavResult:
         """MAV_CMD_SET_MESSAGE_INTERVAL: 0 restores the default, -1 stops the stream."""
@@ -97,13 +100,13 @@ class StreamScheduler:
             rate = 0.0
         else:
             rate = min(1e6 / interval_us, self._max_rate_hz)
+        generation = self._generation.get(msg_id, 0) + 1
+        self._generation[msg_id] = generation
         if rate <= 0.0:
             self._period_s.pop(msg_id, None)
-            self._next_s.pop(msg_id, None)
         else:
             self._period_s[msg_id] = 1.0 / rate
-            self._next_s[msg_id] = t_s
-            self._next_min_s = min(self._next_min_s, t_s)
+            heapq.heappush(self._heap, (t_s, msg_id, msg_id, generation))
         return MavResult.ACCEPTED
 
     def interval_us(self, msg_id: int) -> int:
@@ -113,21 +116,23 @@ class StreamScheduler:
         period = self._period_s.get(msg_id)
         return -1 if period is None else round(period * 1e6)
 
+    @property
+    def next_due_s(self) -> float:
+        """Earliest simulation time at which :meth:`due` can return something."""
+        return self._heap[0][0] if self._heap else math.inf
+
     def due(self, t_s: float) -> list[int]:
-        """Message ids to send now (in a stable order); their next time is scheduled."""
-        if t_s < self._next_min_s:
-            return []
-        out = []
-        next_min = math.inf
-        for msg_id, scheduled_s in self._next_s.items():
-            next_s = scheduled_s
-            if t_s >= scheduled_s:
-                out.append(msg_id)
-                period = self._period_s[msg_id]
-                next_s = scheduled_s + period
-                if next_s <= t_s:
-                    next_s = t_s + period
-                self._next_s[msg_id] = next_s
-            next_min = min(next_min, next_s)
-        self._next_min_s = next_min
+        """Message ids to send now; their next times are scheduled (phase kept, no bursts after a stall)."""
+        heap = self._heap
+        out: list[int] = []
+        while heap and heap[0][0] <= t_s:
+            when, order, msg_id, generation = heapq.heappop(heap)
+            if generation != self._generation[msg_id] or msg_id not in self._period_s:
+                continue
+            out.append(msg_id)
+            period = self._period_s[msg_id]
+            nxt = when + period
+            if nxt <= t_s:
+                nxt = t_s + period
+            heapq.heappush(heap, (nxt, order, msg_id, generation))
         return out

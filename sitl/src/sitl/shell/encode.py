@@ -9,6 +9,7 @@ everything a client sees on the vehicle links.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from sitl.core.control import Setpoint
@@ -97,6 +98,7 @@ class Encoder:
         self.errors_comm = 0
         self.factory = mavlink.MAVLink(None)
         self._chunk_id = 0
+        self._builders = self._table()
 
     @property
     def time_boot_ms(self) -> int:
@@ -106,68 +108,75 @@ class Encoder:
     def time_usec(self) -> int:
         return int(self.v.t_s * 1e6)
 
-    def build(self, msg_id: int) -> Any | None:  # noqa: PLR0911, PLR0912
+    def build(self, msg_id: int) -> Any | None:
         """The message for a stream or a REQUEST_MESSAGE; ``None`` if it cannot be produced."""
-        if msg_id == MsgId.HEARTBEAT:
-            return self.heartbeat()
-        if msg_id == MsgId.SYS_STATUS:
-            return self.sys_status()
-        if msg_id == MsgId.BATTERY_STATUS:
-            return self.battery_status()
-        if msg_id == MsgId.EXTENDED_SYS_STATE:
-            ap = self.v.autopilot
-            return self.factory.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
-        if msg_id == MsgId.ATTITUDE:
-            s = self.v.est.full
-            r, p, y = s.euler_rad
-            return self.factory.attitude_encode(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
-        if msg_id == MsgId.ATTITUDE_QUATERNION:
-            s = self.v.est.full
-            return self.factory.attitude_quaternion_encode(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
-        if msg_id == MsgId.LOCAL_POSITION_NED:
-            e = self.v.est
-            return self.factory.local_position_ned_encode(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
-        if msg_id == MsgId.GLOBAL_POSITION_INT:
-            return self.global_position_int()
-        if msg_id == MsgId.GPS_RAW_INT:
-            return self.gps_raw_int()
-        if msg_id == MsgId.HOME_POSITION:
-            return self.home_position()
-        if msg_id == MsgId.ALTITUDE:
-            e = self.v.est
-            amsl = e.full.alt_amsl_m
-            rel = -e.pos_ned_m[2]
-            agl = e.full.height_above_ground_m
-            return self.factory.altitude_encode(self.time_usec, amsl, amsl, rel, rel, agl, agl)
-        if msg_id == MsgId.VFR_HUD:
-            e = self.v.est
-            vn, ve, vd = e.vel_ned_mps
-            speed = math.hypot(vn, ve)
-            heading = int(math.degrees(e.yaw_rad) % 360.0) % 360
-            throttle = _clamp_int(100.0 * self.v.autopilot.thrust, 0, 100)
-            return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
-        if msg_id == MsgId.HIGHRES_IMU:
-            return self.highres_imu()
-        if msg_id == MsgId.SYSTEM_TIME:
-            unix_us = int((self.unix_epoch_s + self.v.t_s) * 1e6)
-            return self.factory.system_time_encode(unix_us, self.time_boot_ms)
-        if msg_id == MsgId.ODOMETRY:
-            return self.odometry(truth=False)
-        if msg_id == MsgId.POSITION_TARGET_LOCAL_NED:
-            return self.position_target()
-        if msg_id == MsgId.MISSION_CURRENT:
-            return self.mission_current()
-        if msg_id == MsgId.AUTOPILOT_VERSION:
-            return self.autopilot_version()
-        if msg_id == MsgId.GPS_GLOBAL_ORIGIN:
-            h = self.v.home
-            return self.factory.gps_global_origin_encode(
-                round(h.lat_deg * 1e7),
-                round(h.lon_deg * 1e7),
-                round(h.alt_amsl_m * 1000),
-                self.time_usec,
-            )
-        return None
+        builder = self._builders.get(msg_id)
+        return None if builder is None else builder()
+
+    def _table(self) -> dict[int, Callable[[], Any]]:
+        return {
+            MsgId.HEARTBEAT: self.heartbeat,
+            MsgId.SYS_STATUS: self.sys_status,
+            MsgId.BATTERY_STATUS: self.battery_status,
+            MsgId.EXTENDED_SYS_STATE: self.extended_sys_state,
+            MsgId.ATTITUDE: self.attitude,
+            MsgId.ATTITUDE_QUATERNION: self.attitude_quaternion,
+            MsgId.LOCAL_POSITION_NED: self.local_position_ned,
+            MsgId.GLOBAL_POSITION_INT: self.global_position_int,
+            MsgId.GPS_RAW_INT: self.gps_raw_int,
+            MsgId.HOME_POSITION: self.home_position,
+            MsgId.ALTITUDE: self.altitude,
+            MsgId.VFR_HUD: self.vfr_hud,
+            MsgId.HIGHRES_IMU: self.highres_imu,
+            MsgId.SYSTEM_TIME: self.system_time,
+            MsgId.ODOMETRY: lambda: self.odometry(truth=False),
+            MsgId.POSITION_TARGET_LOCAL_NED: self.position_target,
+            MsgId.MISSION_CURRENT: self.mission_current,
+            MsgId.AUTOPILOT_VERSION: self.autopilot_version,
+            MsgId.GPS_GLOBAL_ORIGIN: self.gps_global_origin,
+        }
+
+    def extended_sys_state(self) -> Any:
+        ap = self.v.autopilot
+        return self.factory.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
+
+    def attitude(self) -> Any:
+        s = self.v.est.full
+        r, p, y = s.euler_rad
+        return self.factory.attitude_encode(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
+
+    def attitude_quaternion(self) -> Any:
+        s = self.v.est.full
+        return self.factory.attitude_quaternion_encode(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
+
+    def local_position_ned(self) -> Any:
+        e = self.v.est
+        return self.factory.local_position_ned_encode(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
+
+    def altitude(self) -> Any:
+        e = self.v.est
+        amsl = e.full.alt_amsl_m
+        rel = -e.pos_ned_m[2]
+        agl = e.full.height_above_ground_m
+        return self.factory.altitude_encode(self.time_usec, amsl, amsl, rel, rel, agl, agl)
+
+    def vfr_hud(self) -> Any:
+        e = self.v.est
+        vn, ve, vd = e.vel_ned_mps
+        speed = math.hypot(vn, ve)
+        heading = int(math.degrees(e.yaw_rad) % 360.0) % 360
+        throttle = _clamp_int(100.0 * self.v.autopilot.thrust, 0, 100)
+        return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
+
+    def system_time(self) -> Any:
+        unix_us = int((self.unix_epoch_s + self.v.t_s) * 1e6)
+        return self.factory.system_time_encode(unix_us, self.time_boot_ms)
+
+    def gps_global_origin(self) -> Any:
+        h = self.v.home
+        return self.factory.gps_global_origin_encode(
+            round(h.lat_deg * 1e7), round(h.lon_deg * 1e7), round(h.alt_amsl_m * 1000), self.time_usec
+        )
 
     # ------------------------------------------------------------------ messages
     def heartbeat(self) -> Any:

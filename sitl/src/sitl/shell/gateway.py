@@ -100,7 +100,7 @@ class Gateway:
             "PING": self._on_ping,
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
         }
-        self._statustext_id = 0
+        self._next_due_s = 0.0
         self.ap.on_disarm = None
 
     # ================================================================== inbound
@@ -171,6 +171,7 @@ class Gateway:
         if any(math.isinf(p) for p in req.params):
             self._stats(route).rx_invalid_values += 1
         outcome = handle_command(req, self.ap, streams, self.v.t_s)
+        self._next_due_s = min(self._next_due_s, streams.next_due_s)
         ack = self.encoder.factory.command_ack_encode(
             req.command, int(outcome.result), 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
         )
@@ -420,22 +421,26 @@ class Gateway:
     def after_step(self, wall_s: float) -> None:
         """Send whatever is due after a physics step: streams, then events."""
         t = self.v.t_s
-        cache: dict[int, Any] = {}
-        for name, sched in self.streams.items():
-            due = sched.due(t)
-            if not due:
-                continue
-            link = self.links[name]
-            for msg_id in due:
-                m = cache.get(msg_id)
-                if m is None:
-                    m = self.encoder.build(msg_id)
-                    cache[msg_id] = m
-                if m is not None:
-                    link.send(m)
-        self.flush_events()
-        for out in self.ap.mission_server.tick(wall_s):
-            self._send_mission([out])
+        if t >= self._next_due_s:
+            cache: dict[int, Any] = {}
+            for name, sched in self.streams.items():
+                due = sched.due(t)
+                if not due:
+                    continue
+                link = self.links[name]
+                for msg_id in due:
+                    m = cache.get(msg_id)
+                    if m is None:
+                        m = self.encoder.build(msg_id)
+                        cache[msg_id] = m
+                    if m is not None:
+                        link.send(m)
+            self._next_due_s = min((s.next_due_s for s in self.streams.values()), default=math.inf)
+        if self.ap.events_pending:
+            self.flush_events()
+        if self.ap.mission_server.upload_in_progress:
+            for out in self.ap.mission_server.tick(wall_s):
+                self._send_mission([out])
 
     def flush_events(self) -> None:
         ap = self.ap
@@ -457,3 +462,9 @@ class Gateway:
 
     def send_heartbeat(self) -> None:
         self.broadcast(self.encoder.heartbeat())
+        self.flush()
+
+    def flush(self) -> None:
+        """Put every link's batched frames on the wire (after each step and each burst of input)."""
+        for link in self.links.values():
+            link.flush()

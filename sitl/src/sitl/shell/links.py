@@ -13,12 +13,14 @@ import contextlib
 import errno
 import hashlib
 import socket
+import struct
 import time
 from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fastcrc.crc16 import mcrf4xx
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.errors import LinkError
@@ -30,6 +32,7 @@ __all__ = [
     "TcpServerLink",
     "UdpLink",
     "bind_error",
+    "frame_v2",
     "load_signing_key",
     "mavlink",
 ]
@@ -124,6 +127,34 @@ class _Sink:
         self.data = data
 
 
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")
+
+
+def _return_payload(_mav: Any, _crc_extra: int, payload: bytes, force_mavlink1: bool = False) -> bytes:
+    return payload
+
+
+def frame_v2(msg: Any, seq: int, system_id: int, component_id: int) -> bytes:
+    """Unsigned MAVLink 2 frame of ``msg``, byte-identical to pymavlink's ``msg.pack`` but ~3x cheaper.
+
+    The generated ``pack`` computes the payload and hands it to ``_pack``; the
+    payload is taken from there, then header, trailing-zero truncation and the
+    CRC (with the message's CRC_EXTRA) are done here. Checked against pymavlink
+    for every message we send (tests/unit/sitl/test_links.py).
+    """
+    msg._pack = _return_payload
+    try:
+        payload: bytes = msg.pack(None)
+    finally:
+        del msg._pack
+    body = payload.rstrip(b"\0") or payload[:1]
+    cls = type(msg)  # class attributes: some messages have a field called "id"
+    msg_id = cls.id
+    header = _HEADER_V2.pack(253, len(body), 0, 0, seq, system_id, component_id, msg_id & 0xFFFF, msg_id >> 16)
+    crc = mcrf4xx(header[1:] + body + bytes((cls.crc_extra,)), 0xFFFF)
+    return header + body + crc.to_bytes(2, "little")
+
+
 def _make_parser(key: bytes | None) -> Any:
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
@@ -157,8 +188,13 @@ class MavLink:
         self._parsers: dict[Hashable, Any] = {}
 
     def pack(self, msg: Any) -> bytes:
-        buf: bytes = msg.pack(self.encoder)
-        self.encoder.seq = (self.encoder.seq + 1) % 256
+        """One MAVLink 2 frame with this link's sequence number (signed if the link signs)."""
+        enc = self.encoder
+        if self.signing_key is not None:
+            buf: bytes = msg.pack(enc)
+        else:
+            buf = frame_v2(msg, enc.seq, enc.srcSystem, enc.srcComponent)
+        enc.seq = (enc.seq + 1) % 256
         return buf
 
     def _parser(self, peer: Hashable) -> Any:
@@ -171,8 +207,11 @@ class MavLink:
         return parser
 
     def send(self, msg: Any, route: Hashable | None = None) -> None:
-        """Send to ``route``'s peer, or to every peer of the link (``None``)."""
+        """Send to ``route``'s peer, or to every peer of the link (``None``, possibly batched until :meth:`flush`)."""
         raise NotImplementedError
+
+    def flush(self) -> None:
+        """Put batched frames on the wire."""
 
     def close(self) -> None:
         raise NotImplementedError
@@ -228,6 +267,7 @@ class UdpLink(MavLink):
     """PX4-style UDP link: bind a local port, send to the remote port and to every peer heard recently."""
 
     PEER_TIMEOUT_S = 10.0
+    BATCH_BYTES = 1200
 
     def __init__(
         self,
@@ -256,6 +296,8 @@ class UdpLink(MavLink):
         self.remote = (socket.gethostbyname(remote[0]), remote[1])
         self._peers: dict[tuple[str, int], float] = {}
         self._clock = clock
+        self._batch = bytearray()
+        self._batch_count = 0
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -294,21 +336,40 @@ class UdpLink(MavLink):
         return dests
 
     def send(self, msg: Any, route: Hashable | None = None) -> None:
-        """Pack once; send to ``route``'s peer, or to the remote and every live peer."""
+        """Pack once; send to ``route``'s peer at once, or batch for the remote and every live peer.
+
+        Like PX4's mavlink module, several frames share one datagram (up to
+        :attr:`BATCH_BYTES`); every MAVLink parser reads them one after another.
+        """
         buf = self.pack(msg)
-        if route is not None:
-            dests = [route[1]] if isinstance(route, tuple) and route[0] == self.name else []
-        else:
-            dests = self.destinations()
-        for dest in dests:
-            try:
-                self.sock.sendto(buf, dest)
-                self.stats.tx_messages += 1
-                self.stats.tx_bytes += len(buf)
-            except OSError:
-                self.stats.tx_errors += 1
+        if route is None:
+            self._batch += buf
+            self._batch_count += 1
+            if len(self._batch) >= self.BATCH_BYTES:
+                self.flush()
+            return
+        if isinstance(route, tuple) and route[0] == self.name:
+            self._sendto(buf, route[1], 1)
+
+    def flush(self) -> None:
+        if not self._batch:
+            return
+        data, count = bytes(self._batch), self._batch_count
+        self._batch.clear()
+        self._batch_count = 0
+        for dest in self.destinations():
+            self._sendto(data, dest, count)
+
+    def _sendto(self, data: bytes, dest: tuple[str, int], count: int) -> None:
+        try:
+            self.sock.sendto(data, dest)
+            self.stats.tx_messages += count
+            self.stats.tx_bytes += len(data)
+        except OSError:
+            self.stats.tx_errors += 1
 
     def close(self) -> None:
+        self.flush()
         self.sock.close()
 
 
@@ -325,6 +386,7 @@ class TcpServerLink(MavLink):
     """A TCP server; every accepted connection is a peer that gets all broadcast traffic."""
 
     MAX_OUT_BUFFER = 4 << 20
+    BATCH_BYTES = 4096
 
     def __init__(
         self,
@@ -421,9 +483,14 @@ class TcpServerLink(MavLink):
             client.out += buf
             self.stats.tx_messages += 1
             self.stats.tx_bytes += len(buf)
-            self.flush(cid)
+            if route is not None or len(client.out) >= self.BATCH_BYTES:
+                self.flush_client(cid)
 
-    def flush(self, cid: int) -> None:
+    def flush(self) -> None:
+        for cid in list(self.clients):
+            self.flush_client(cid)
+
+    def flush_client(self, cid: int) -> None:
         client = self.clients.get(cid)
         if client is None or not client.out:
             return

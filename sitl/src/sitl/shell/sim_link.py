@@ -77,7 +77,7 @@ class SimLink:
         self._peers: dict[tuple[str, int], float] = {}
         self._next_state_s = 0.0
         self._next_heartbeat_s = 0.0
-        self._last_status: tuple[int, int, int] | None = None
+        self._last_status = -1
         self.grants: list[Grant] = []
         self.collisions = 0
         self.terrain_reports = 0
@@ -180,11 +180,10 @@ class SimLink:
         self._maybe_heartbeat(t)
 
     def _maybe_heartbeat(self, t: float) -> None:
-        ap = self.v.autopilot
-        status = (ap.mode.custom_mode, int(ap.armed), int(ap.system_status))
-        if t >= self._next_heartbeat_s or status != self._last_status:
+        version = self.v.autopilot.status_version
+        if t >= self._next_heartbeat_s or version != self._last_status:
             self._next_heartbeat_s = t + 1.0
-            self._last_status = status
+            self._last_status = version
             self.send_heartbeat()
 
     def send_heartbeat(self) -> None:
@@ -223,8 +222,15 @@ class SimLink:
         act = f.hil_actuator_controls_encode(
             int(s.t_s * 1e6), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
         )
-        for msg in (self.encoder.odometry(truth=True), hil, act):
-            self._send(msg, peers)
+        # one datagram per participant: the three messages of the same instant
+        frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))
+        for peer in peers:
+            try:
+                self.sock.sendto(frames, peer)
+                self.link.stats.tx_messages += 3
+                self.link.stats.tx_bytes += len(frames)
+            except OSError:
+                self.link.stats.tx_errors += 1
         self._maybe_heartbeat(v.t_s)
 
     def close(self) -> None:

@@ -1,0 +1,204 @@
+"""SITL real-time factor at maximum speed factor, 250 Hz physics: hovering, flying a mission, lockstep.
+
+What is measured is the whole ``uav-sitl`` simulator in one process, exactly as
+the CLI runs it: JSBSim stepping, the full autopilot (every loop, failsafes,
+navigator), the battery and estimator, *and* the MAVLink telemetry of the
+default links (GCS normal profile, API onboard profile, TCP server) encoded and
+sent over UDP on free local ports, with the simulation link publishing ground
+truth to a registered listener at 50 Hz. Set-up (arming, takeoff) is not timed.
+
+Baseline (measured in the same run): bare JSBSim, the same F450 model stepped at
+the same 250 Hz with constant motor commands and no autopilot, no telemetry.
+That is the ceiling; ``ratio`` is the fraction of it the full SITL keeps.
+The target (>= 50x real time) applies to the value itself.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from benchlib import record
+
+from sitl.config import load_sitl_config
+from sitl.core.mission import MissionItem
+from sitl.core.modes import FlightMode
+from sitl.core.protocol import MavCmd, MavFrame
+from sitl.fdm import JsbsimQuad
+from sitl.simulator import Simulator
+from uav_common.geo import LocalProjection
+
+SIM_SECONDS = 90.0
+TARGET = 50.0
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def make_simulator(*, lockstep: bool = False) -> Simulator:
+    udp, tcp = socket.SOCK_DGRAM, socket.SOCK_STREAM
+    overrides = {
+        "time.speed_factor": "max",
+        "time.mode": "lockstep" if lockstep else "free",
+        "params.file": None,
+        "links.gcs.remote_port": free_port(udp),
+        "links.gcs.local_port": free_port(udp),
+        "links.api.remote_port": free_port(udp),
+        "links.api.local_port": free_port(udp),
+        "links.tcp.port": free_port(tcp),
+        "sim_link.port": free_port(udp),
+        "mavlink.stats_period_s": 0,
+    }
+    return Simulator(load_sitl_config(REPO / "config" / "sitl.yaml", overrides))
+
+
+def attach_sim_listener(sim: Simulator) -> socket.socket:
+    """A participant on the simulation link (like the sensor bridge) that receives ground truth."""
+    assert sim.sim_link is not None
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", 0))
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    # any frame registers; a HEARTBEAT from 1/200 as the architecture says
+    from pymavlink.dialects.v20 import common as mavlink  # noqa: PLC0415
+
+    hb = mavlink.MAVLink(None, srcSystem=1, srcComponent=200).heartbeat_encode(0, 8, 0, 0, 0)
+    listener.sendto(
+        hb.pack(mavlink.MAVLink(None, srcSystem=1, srcComponent=200)), ("127.0.0.1", sim.sim_link.local_port)
+    )
+    sim.poll(0.2)
+    return listener
+
+
+def take_off(sim: Simulator, altitude_m: float) -> None:
+    ap = sim.vehicle.autopilot
+    sim.run(max_sim_time_s=0.2)
+    ap.arm(force=False)
+    ap.takeoff(alt_amsl_m=sim.vehicle.home.alt_amsl_m + altitude_m, lat_deg=math.nan, lon_deg=math.nan,
+               yaw_deg=math.nan)  # fmt: skip
+    sim.run(max_sim_time_s=15.0)
+    if ap.mode is not FlightMode.AUTO_LOITER:
+        msg = f"bench set-up: takeoff did not finish (mode {ap.mode.px4_name})"
+        raise RuntimeError(msg)
+
+
+def timed(sim: Simulator, seconds: float) -> tuple[float, float]:
+    """``(wall-clock RTF, CPU-time RTF)``: the second is what the SITL reaches with a core to itself."""
+    cpu0 = time.process_time()
+    summary = sim.run(max_sim_time_s=seconds)
+    return summary.real_time_factor, summary.sim_time_s / (time.process_time() - cpu0)
+
+
+def bench_hover() -> tuple[tuple[float, float], str]:
+    sim = make_simulator()
+    try:
+        listener = attach_sim_listener(sim)
+        take_off(sim, 20.0)
+        rtf = timed(sim, SIM_SECONDS)
+        n, e, d = sim.vehicle.pos_ned_truth_m
+        listener.close()
+        return rtf, f"hover at {-d:.1f} m, drift {math.hypot(n, e):.2f} m"
+    finally:
+        sim.close()
+
+
+def bench_mission() -> tuple[tuple[float, float], str]:
+    sim = make_simulator()
+    try:
+        listener = attach_sim_listener(sim)
+        take_off(sim, 20.0)
+        ap = sim.vehicle.autopilot
+        proj = LocalProjection(sim.vehicle.home)
+        items = [MissionItem(0, MavFrame.MISSION, MavCmd.DO_CHANGE_SPEED, 0, 1, 1.0, 8.0, -1.0, 0.0, 0, 0, 0.0)]
+        for i, (n, e) in enumerate([(150.0, 0.0), (150.0, 150.0), (0.0, 150.0), (0.0, 0.0)] * 2, start=1):
+            geo = proj.to_geo(n, e, 0.0)
+            items.append(MissionItem(i, MavFrame.GLOBAL_RELATIVE_ALT_INT, MavCmd.NAV_WAYPOINT, 0, 1, 0.0, 2.0, 0.0,
+                                     math.nan, round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7), 20.0))  # fmt: skip
+        ap.mission_store.replace(tuple(items))
+        ap.mission_uploaded()
+        ap.set_mode(FlightMode.AUTO_MISSION)
+        rtf = timed(sim, SIM_SECONDS)
+        reached = ap.mission_current_seq
+        listener.close()
+        return rtf, f"mission 8 x 150 m legs at 8 m/s, at item {reached} after {SIM_SECONDS:.0f} s"
+    finally:
+        sim.close()
+
+
+def bench_lockstep() -> tuple[float, str]:
+    """A step master on the simulation link granting 1 s (250 steps) at a time, waiting for each ACK."""
+    from pymavlink.dialects.v20 import common as mavlink  # noqa: PLC0415
+
+    sim = make_simulator(lockstep=True)
+    try:
+        assert sim.sim_link is not None
+        master = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        master.bind(("127.0.0.1", 0))
+        master.settimeout(5.0)
+        enc = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
+        parser = mavlink.MAVLink(None)
+        dest = ("127.0.0.1", sim.sim_link.local_port)
+        import threading  # noqa: PLC0415
+
+        runner = threading.Thread(target=sim.run, daemon=True)
+        runner.start()
+        grants = int(SIM_SECONDS)
+        t0 = time.perf_counter()
+        for _ in range(grants):
+            master.sendto(enc.command_long_encode(1, 1, 31010, 0, 250, 0, 0, 0, 0, 0, 0).pack(enc), dest)
+            acked = False
+            while not acked:
+                data = master.recv(65535)
+                for msg in parser.parse_buffer(data) or []:
+                    acked = acked or (msg.get_type() == "COMMAND_ACK" and msg.command == 31010)
+        wall = time.perf_counter() - t0
+        sim.stop()
+        runner.join(5)
+        master.close()
+        return grants / wall, "1 s grants over UDP, each waiting for its ACK (state messages included)"
+    finally:
+        sim.close()
+
+
+def bench_bare_jsbsim() -> tuple[float, float]:
+    cfg = load_sitl_config(REPO / "config" / "sitl.yaml", {"params.file": None})
+    fdm = JsbsimQuad(aircraft="F450", dt_s=cfg.physics.dt_s, lat_deg=cfg.home.lat_deg, lon_deg=cfg.home.lon_deg,
+                     ground_alt_amsl_m=cfg.home.alt_amsl_m, yaw_rad=0.0,
+                     motor_max_voltage_v=cfg.physics.motor_max_voltage_v)  # fmt: skip
+    steps = round(SIM_SECONDS / cfg.physics.dt_s)
+    duty = (0.41, 0.41, 0.41, 0.41)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        fdm.step(duty, cfg.physics.motor_max_voltage_v)
+    return SIM_SECONDS / (time.perf_counter() - t0), SIM_SECONDS / (time.process_time() - c0)
+
+
+def main() -> int:
+    baseline, baseline_cpu = bench_bare_jsbsim()
+    load = os.getloadavg()[0]
+    machine = f"load average {load:.1f} on {os.cpu_count()} cores at start"
+    print(f"baseline: bare JSBSim F450 at 250 Hz runs at {baseline:.0f}x real time ({machine})", flush=True)
+    for name, fn in (("sitl.rtf.hover", bench_hover), ("sitl.rtf.mission", bench_mission)):
+        (rtf, rtf_cpu), notes = fn()
+        record(name, rtf, "x real time", baseline, target=f">= {TARGET:g}", met=rtf >= TARGET,
+               notes=f"wall clock; full SITL incl. default-link telemetry and sim link, 250 Hz; {notes}; "
+               f"baseline = bare JSBSim stepping, no autopilot; {machine}")  # fmt: skip
+        record(f"{name}.cpu", rtf_cpu, "x real time", baseline_cpu, target=f">= {TARGET:g}", met=rtf_cpu >= TARGET,
+               notes="simulated time per CPU second of the process (what it reaches with a core to itself); "
+               "baseline = bare JSBSim per CPU second")  # fmt: skip
+    rtf, notes = bench_lockstep()
+    record("sitl.rtf.lockstep", rtf, "x real time", baseline, notes=f"{notes}; baseline = bare JSBSim; {machine}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
