@@ -186,12 +186,27 @@ def test_renderer_is_bound_to_its_thread(flat_renderer: Renderer) -> None:
 
 
 def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, artifacts: Path) -> None:
-    """Writes color / depth / class / instance PNGs of both cameras at a few places, and an overview."""
+    """Writes color / depth / class / instance PNGs of both cameras at home and over villages, and an overview.
+
+    Nadir views are 60 m above each place; forward views come from 90 m south-west of
+    it, 40 m above the ground, heading towards it.
+    """
     frames: list[np.ndarray] = []
-    for name, (xy, yaw) in zip(["home", "village_east", "village_west", "north"], POSES, strict=True):
-        z = float(default_world.height_at(*xy)) + 50.0
-        base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
-        for cam in (NADIR, FORWARD):
+    places = [("home", (0.0, 0.0))] + [
+        (f"village_{k}", tuple(v)) for k, v in enumerate(default_world.roads.villages_m[:3])
+    ]
+    for name, (x, y) in places:
+        fx, fy = x - 64.0, y - 64.0
+        views = [
+            (NADIR, RigidTransform.from_rpy([x, y, float(default_world.height_at(x, y)) + 60.0], yaw_rad=0.8)),
+            (
+                FORWARD,
+                RigidTransform.from_rpy(
+                    [fx, fy, float(default_world.height_at(fx, fy)) + 40.0], yaw_rad=math.atan2(y - fy, x - fx)
+                ),
+            ),
+        ]
+        for cam, base in views:
             f = default_renderer.render(cam, cam.optical_pose(base))
             Image.fromarray(f.color_rgb).save(artifacts / f"{name}_{cam.name}_color.png")
             Image.fromarray(visualize.depth_image(f.depth_m)).save(artifacts / f"{name}_{cam.name}_depth.png")
@@ -201,6 +216,9 @@ def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, 
             Image.fromarray(visualize.instance_image(f.instance_id)).save(artifacts / f"{name}_{cam.name}_instance.png")
             assert f.color_rgb.std() > 10  # textured, not a flat fill
             frames.append(f.color_rgb)
+            if name.startswith("village"):  # a village shows buildings and a road
+                classes = set(np.unique(default_world.instance_class[f.instance_id]).tolist())
+                assert {int(ObjectClass.BUILDING), int(ObjectClass.ROAD)} <= classes, (name, cam.name, classes)
     for i in range(len(frames)):
         for j in range(i + 1, len(frames)):
             assert not np.array_equal(frames[i], frames[j]), "every view is different"
