@@ -59,7 +59,10 @@ STREAM_READ_BYTES = 65536
 WRITE_BATCH_BYTES = 65536
 UDP_CLIENT_REVERT_S = 5.0
 """A UDP client replies to the last sender; after this much silence it goes back to its Address:Port."""
-SOCKET_BUFFER_BYTES = 1 << 20
+UDP_RCVBUF_BYTES = 4 << 20
+"""Requested UDP receive buffer (the kernel caps it at net.core.rmem_max): absorbs bursts
+while the router is not scheduled, instead of dropping them."""
+UDP_SNDBUF_BYTES = 1 << 20
 TCP_SNDBUF_BYTES = 64 * 1024
 FIRST_RETRY_S = 0.25
 UART_BAUD_CYCLE_S = 5.0
@@ -212,8 +215,8 @@ class UdpEndpoint(Endpoint):
             return
         try:
             sock.setblocking(False)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_BUFFER_BYTES)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF_BYTES)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, UDP_SNDBUF_BYTES)
             if self.config.mode is UdpMode.SERVER:
                 sock.bind((self._host_ip, self.config.port))
             else:
