@@ -16,9 +16,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 from uav_common.pointcloud import FIELD_OFFSETS, POINT_STEP, pack_xyzrgb, unpack_xyzrgb
 from uav_sim_bridge.errors import PointCloudLayoutError
 
-__all__ = ["XYZRGB_FIELDS", "pointcloud2_to_xyzrgb", "xyzrgb_to_pointcloud2"]
+__all__ = ["pointcloud2_to_xyzrgb", "xyzrgb_fields", "xyzrgb_to_pointcloud2"]
 
-XYZRGB_FIELDS = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in FIELD_OFFSETS.items()]
+
+def xyzrgb_fields() -> list[PointField]:
+    """Fresh ``PointField`` s of the x y z rgb layout (messages must not share mutable field objects)."""
+    return [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in FIELD_OFFSETS.items()]
 
 
 def xyzrgb_to_pointcloud2(header: Any, points_xyz: npt.ArrayLike, colors_rgb_u8: npt.ArrayLike) -> PointCloud2:
@@ -33,7 +36,7 @@ def xyzrgb_to_pointcloud2(header: Any, points_xyz: npt.ArrayLike, colors_rgb_u8:
         header=header,
         height=1,
         width=n,
-        fields=XYZRGB_FIELDS,
+        fields=xyzrgb_fields(),
         is_bigendian=False,
         point_step=POINT_STEP,
         row_step=POINT_STEP * n,
