@@ -68,6 +68,11 @@ def test_time_advances_only_on_grants(tmp_path: Path) -> None:
         msgs = master.grant(1)
         odo = next(m for m in msgs if m.get_type() == "ODOMETRY")
         assert odo.time_usec == 1_004_000, "wall time in between did not count"
+        # the bridge reports the ground 2 m below home under the vehicle: it drops onto it
+        home_alt_m = 488.0  # config/sitl.yaml
+        master.conn.mav.terrain_report_send(0, 0, 0, home_alt_m - 2.0, 0, 0, 0)
+        dropped = next(m for m in master.grant(500) if m.get_type() == "ODOMETRY")
+        assert dropped.z - odo.z == pytest.approx(2.0, abs=0.03), "standing 2 m lower (NED z is down)"
         master.conn.mav.command_long_send(1, 1, SIM_STEP, 0, 0.5, 0, 0, 0, 0, 0, 0)
         ack = master.conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
         assert ack is not None

@@ -7,6 +7,7 @@ import math
 import pytest
 from unit.sitl.sitl_builders import make_vehicle, pos, run, take_off
 
+from sitl.core.autopilot import ManualInput
 from sitl.core.control import Setpoint
 from sitl.core.mission import MissionItem
 from sitl.core.modes import FlightMode
@@ -221,3 +222,82 @@ def test_collision_crashes_and_disarms_for_good() -> None:
     assert all(d == 0.0 for d in v.duty)
     assert ap.arm(force=True) is MavResult.DENIED
     assert ap.set_mode(FlightMode.AUTO_LAND) is MavResult.DENIED
+
+
+def sticks(
+    v: Vehicle, *, pitch: float = 0.0, roll: float = 0.0, throttle: float = 0.5, yaw: float = 0.0, seconds: float = 1.0
+) -> None:  # fmt: skip
+    """Hold MANUAL_CONTROL sticks for ``seconds`` (sent at 50 Hz, like a joystick)."""
+    for _ in range(round(seconds * 50)):
+        v.autopilot.manual_control(ManualInput(pitch, roll, throttle, yaw), v.t_s, v.t_s)
+        run(v, 0.02)
+
+
+def test_posctl_sticks_take_off_fly_and_hold() -> None:
+    v = make_vehicle()
+    ap = v.autopilot
+    run(v, 0.1)
+    sticks(v, seconds=0.2)
+    assert ap.set_mode(FlightMode.POSCTL) is MavResult.ACCEPTED
+    assert ap.arm(force=False) is MavResult.ACCEPTED
+    sticks(v, throttle=0.5, seconds=1.0)
+    assert ap.landed, "centred throttle stick: stay on the ground"
+    sticks(v, throttle=1.0, seconds=3.0)
+    assert not ap.landed
+    assert -pos(v)[2] > 5.0
+    sticks(v, pitch=1.0, seconds=3.0)  # full forward at heading north
+    assert pos(v)[0] > 10.0
+    sticks(v, seconds=4.0)  # sticks centred: brake and hold
+    held = pos(v)
+    sticks(v, seconds=3.0)
+    assert math.dist(held, pos(v)) < 0.3
+    run(v, 2.0)  # no more MANUAL_CONTROL: manual-control-loss failsafe (NAV_RCL_ACT 2 = return)
+    assert ap.mode is FlightMode.AUTO_RTL
+    assert any("Manual control lost" in t for t in texts(v))
+
+
+def test_manual_mode_is_attitude_and_throttle() -> None:
+    v = make_vehicle()
+    ap = v.autopilot
+    take_off(v, 10.0, settle_s=1.0)
+    sticks(v, throttle=0.5, seconds=0.2)
+    assert ap.set_mode(FlightMode.MANUAL) is MavResult.ACCEPTED
+    z0 = pos(v)[2]
+    sticks(v, throttle=0.5, roll=0.5, seconds=2.0)
+    roll, _, _ = v.truth().euler_rad
+    assert 0.1 < roll < math.radians(35.0) + 0.05, "roll stick commands a bank angle"
+    assert pos(v)[1] > 1.0, "banked right: drifting east"
+    sticks(v, throttle=0.9, seconds=2.0)
+    assert pos(v)[2] < z0 - 1.0, "throttle up: climbing"
+
+
+def test_mission_started_on_the_ground_takes_off_first() -> None:
+    v = make_vehicle()
+    ap = v.autopilot
+    run(v, 0.1)
+    ap.mission_store.replace((wp(v, 0, 15.0, 0.0, 8.0), wp(v, 1, 0.0, 0.0, 0.0, cmd=MavCmd.NAV_LAND)))
+    ap.mission_uploaded()
+    assert ap.set_mode(FlightMode.AUTO_MISSION) is MavResult.ACCEPTED
+    assert ap.arm(force=False) is MavResult.ACCEPTED
+    run(v, 80.0, until=lambda x: not x.autopilot.armed)
+    assert ap.mission_state is MissionState.COMPLETE
+    assert ap.drain_reached() == [0, 1]
+    assert not ap.armed
+
+
+def test_terrain_from_the_bridge_moves_the_ground() -> None:
+    """Landing on a roof: the ground under the vehicle is 4 m above home."""
+    v = make_vehicle()
+    take_off(v, 10.0, settle_s=1.0)
+    assert v.set_terrain_amsl(v.home.alt_amsl_m + 4.0)
+    run(v, 0.1)
+    expected_agl = -pos(v)[2] - 4.0 - v.fdm.ground_clearance_m
+    assert v.truth().height_above_ground_m == pytest.approx(expected_agl, abs=0.02)
+    v.autopilot.land(lat_deg=NAN, lon_deg=NAN)
+    run(v, 40.0, until=lambda x: not x.autopilot.armed)
+    assert not v.autopilot.armed
+    assert -pos(v)[2] == pytest.approx(4.0 + v.fdm.ground_clearance_m, abs=0.05)
+    # a report above the landing gear (inside an obstacle) is clamped, never buried
+    assert not v.set_terrain_amsl(v.home.alt_amsl_m + 50.0)
+    run(v, 1.0)
+    assert -pos(v)[2] == pytest.approx(4.0 + v.fdm.ground_clearance_m, abs=0.05)

@@ -609,17 +609,22 @@ class Autopilot:
         right = _deadband(sticks.roll) if sticks else 0.0
         climb = _deadband(2.0 * sticks.throttle - 1.0) if sticks else 0.0
         yaw_rate = _deadband(sticks.yaw) * math.radians(p["MPC_MAN_Y_MAX"]) if sticks else 0.0
-        if not isinstance(self._task, GotoTask):
-            self._task = GotoTask(est.pos_ned_m, yaw_rad=est.yaw_rad)
-        if fwd == 0.0 and right == 0.0 and climb == 0.0 and yaw_rate == 0.0:
+        centred = fwd == 0.0 and right == 0.0 and climb == 0.0 and yaw_rate == 0.0
+        if centred:
+            if not isinstance(self._task, GotoTask):
+                # sticks released: brake to a stop, then hold where the vehicle stopped (PX4 POSCTL)
+                vn, ve, vd = est.vel_ned_mps
+                if math.hypot(vn, ve) > 0.3 or abs(vd) > 0.3:
+                    sp = Setpoint(vel=(0.0, 0.0, 0.0), yaw_rad=self._yaw_hold)
+                    return NavOutput(sp, limits, NavPhase.CRUISE)
+                self._task = GotoTask(est.pos_ned_m, yaw_rad=est.yaw_rad)
             return self._task.update(ctx)
+        self._task = None
         yaw = est.yaw_rad
         speed = p["MPC_XY_VEL_MAX"]
         vn = (fwd * math.cos(yaw) - right * math.sin(yaw)) * speed
         ve = (fwd * math.sin(yaw) + right * math.cos(yaw)) * speed
         vd = -climb * (p["MPC_Z_VEL_MAX_UP"] if climb > 0 else p["MPC_Z_VEL_MAX_DN"])
-        target = est.pos_ned_m
-        self._task = GotoTask(target, yaw_rad=est.yaw_rad)
         sp = Setpoint(vel=(vn, ve, vd), yaw_rate_radps=yaw_rate)
         return NavOutput(sp, limits, NavPhase.CRUISE)
 
