@@ -35,6 +35,7 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <cstdio>
 #include <cstdlib>
 #include <deque>
 #include <limits>
@@ -709,6 +710,8 @@ class MapServerNode {
 }  // namespace uav_mapping
 
 int main(int argc, char** argv) {
+  // Line-buffered output, so that logs reach a pipe (roslaunch, test harnesses) even if the node is killed.
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);
   ros::init(argc, argv, "map_server");
   ros::NodeHandle nh;
   ros::NodeHandle pnh("~");
