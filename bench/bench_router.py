@@ -42,7 +42,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 from benchlib import percentile, record  # noqa: E402
-from helpers.procs import free_port, free_udp_port, wait_for_port  # noqa: E402
+from helpers.procs import artifacts_dir, free_port, free_udp_port, wait_for_port  # noqa: E402
 
 from mavlink_router.dialect import load_message_table  # noqa: E402
 from mavlink_router.frames import x25_crc  # noqa: E402
@@ -171,7 +171,12 @@ class Receivers:
 
 
 def start(argv: list[str], ready_port: int | None = None) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    """Start a relay; its output goes to artifacts/logs/ (an unread pipe could fill and block it)."""
+    log_dir = artifacts_dir() / "logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with (log_dir / f"bench_router_{Path(argv[0]).name}.log").open("w") as log:
+        stdout = log if ready_port is not None else subprocess.PIPE
+        proc = subprocess.Popen(argv, stdout=stdout, stderr=log, text=True)
     if ready_port is not None:
         wait_for_port(ready_port, timeout_s=20)
     else:
