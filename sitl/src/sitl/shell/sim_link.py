@@ -222,15 +222,9 @@ class SimLink:
         act = f.hil_actuator_controls_encode(
             int(s.t_s * 1e6), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
         )
-        # one datagram per participant: the three messages of the same instant
-        frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))
-        for peer in peers:
-            try:
-                self.sock.sendto(frames, peer)
-                self.link.stats.tx_messages += 3
-                self.link.stats.tx_bytes += len(frames)
-            except OSError:
-                self.link.stats.tx_errors += 1
+        # one message per datagram on this link: the simplest contract for the bridge's parser
+        for msg in (self.encoder.odometry(truth=True), hil, act):
+            self._send(msg, peers)
         self._maybe_heartbeat(v.t_s)
 
     def close(self) -> None:
