@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from uav_autonomy.core.depth_config import PoseSmoothingConfig
-from uav_autonomy.core.depth_motion import fit_trajectory
+from uav_autonomy.core.depth_motion import estimate_jitter_m, fit_trajectory
 
 CFG = PoseSmoothingConfig()
 T = np.arange(-CFG.window_s, 1e-9, 0.1)  # 10 Hz frames of the last window, reference at t = 0
@@ -69,3 +69,19 @@ def test_too_few_or_bad_samples() -> None:
     assert fit is not None
     assert fit.samples == len(T) - 1
     assert fit.at(-1.0) == pytest.approx([-8.0, -2.0, 50.0])
+
+
+@pytest.mark.parametrize("traj", [straight, turn(20.0), braking])
+def test_exact_poses_show_no_jitter_even_in_manoeuvres(traj: Callable[[np.ndarray], np.ndarray]) -> None:
+    jitter = estimate_jitter_m(T, traj(T), CFG.jitter_window_s)
+    assert jitter is not None
+    assert jitter < CFG.min_jitter_m / 2  # so exact poses are never smoothed
+
+
+def test_jitter_is_measured() -> None:
+    rng = np.random.default_rng(4)
+    estimates = [
+        estimate_jitter_m(T, braking(T) + rng.normal(0.0, 0.05, (len(T), 3)), CFG.jitter_window_s) for _ in range(100)
+    ]
+    assert float(np.median([e for e in estimates if e is not None])) == pytest.approx(0.05, rel=0.15)
+    assert estimate_jitter_m(T[-5:], straight(T[-5:]), 1.0) is None  # too few samples

@@ -229,19 +229,25 @@ class PoseRefineConfig:
 class PoseSmoothingConfig:
     """Least-squares polynomial fit of the recent camera positions (see ``depth_motion``).
 
-    The relative translation of a pair is taken from the fit of the frames of the
-    last ``window_s`` seconds, unless the fit residual exceeds ``max_residual_m``.
+    When the positions jitter by more than ``min_jitter_m`` (estimated over the last
+    ``jitter_window_s``), the relative translation of a pair is taken from the fit of
+    the frames of the last ``window_s`` seconds, unless the fit residual exceeds
+    ``max_residual_m``. Exact poses are used as they are.
     """
 
     enabled: bool = True
     window_s: float = 3.0
     degree: int = 3
     max_residual_m: float = 0.3
+    min_jitter_m: float = 0.01
+    jitter_window_s: float = 1.0
 
     def __post_init__(self) -> None:
         _require(self.window_s > 0, "window_s must be > 0")
         _require(1 <= self.degree <= 3, "degree must be in [1, 3]")
         _require(self.max_residual_m > 0, "max_residual_m must be > 0")
+        _require(self.min_jitter_m >= 0, "min_jitter_m must be >= 0")
+        _require(self.jitter_window_s > 0, "jitter_window_s must be > 0")
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ or counted skips come out.
 from __future__ import annotations
 
 import enum
+import math
 from collections import Counter, deque
 from dataclasses import dataclass
 
@@ -21,7 +22,7 @@ import numpy.typing as npt
 from uav_autonomy.core.depth_config import EstimatorConfig
 from uav_autonomy.core.depth_errors import DepthGeometryError
 from uav_autonomy.core.depth_matching import DisparitySearch, disparity_search, match_rectified
-from uav_autonomy.core.depth_motion import fit_trajectory
+from uav_autonomy.core.depth_motion import estimate_jitter_m, fit_trajectory
 from uav_autonomy.core.depth_pairing import PairGeometry, PairVerdict, initial_depth_prior_m, select_partner
 from uav_autonomy.core.depth_rectify import coverage_mask, rectify_pair, warp_to_rectified
 from uav_autonomy.core.depth_refine import RefineOutcome, refine_relative_pose
@@ -75,6 +76,7 @@ class DepthEstimate:
         coverage: fraction of pixels with a depth.
         depth_prior_m: the prior used to size the search.
         pose_smoothed: the relative translation came from the trajectory fit.
+        pose_jitter_m: the estimated position jitter of the poses (NaN: unknown or smoothing off).
     """
 
     stamp_ns: int
@@ -86,6 +88,7 @@ class DepthEstimate:
     coverage: float
     depth_prior_m: float
     pose_smoothed: bool = False
+    pose_jitter_m: float = float("nan")
 
 
 @dataclass
@@ -162,7 +165,7 @@ class MotionStereoEstimator:
             return self._skip(frame, reason, pairing=selection.verdict, detail=f"pairing: {selection.verdict.value}")
         partner = selection.partner
         refine: RefineOutcome | None = None
-        partner_pose, smoothed = self._smoothed_partner_pose(frame, partner)
+        partner_pose, smoothed, jitter = self._smoothed_partner_pose(frame, partner)
         if self.config.pose_refine.enabled:
             refine = refine_relative_pose(
                 self._gray_of(frame),
@@ -195,30 +198,31 @@ class MotionStereoEstimator:
             coverage=n_valid / depth.size,
             depth_prior_m=prior,
             pose_smoothed=smoothed,
+            pose_jitter_m=jitter,
         )
 
     def cloud(self, estimate: DepthEstimate, frame: ColorFrame) -> ColoredPoints:
         """The colored cloud of an estimate, in the reference optical frame."""
         return points_from_depth(estimate.depth_m, frame.rgb, self.camera, self.config.cloud_stride_px)
 
-    def _smoothed_partner_pose(self, frame: ColorFrame, partner: ColorFrame) -> tuple[CameraPose, bool]:
-        """The partner pose with the relative translation from the trajectory fit (if enabled and sound)."""
+    def _smoothed_partner_pose(self, frame: ColorFrame, partner: ColorFrame) -> tuple[CameraPose, bool, float]:
+        """The partner pose, its translation from the trajectory fit when the poses jitter; and the jitter."""
         cfg = self.config.pose_smoothing
         if not cfg.enabled:
-            return partner.pose, False
-        window_ns = int(cfg.window_s * 1e9)
+            return partner.pose, False, math.nan
+        window_ns = int(max(cfg.window_s, cfg.jitter_window_s) * 1e9)
         recent = [f for f in self._history if 0 <= frame.stamp_ns - f.stamp_ns <= window_ns]
-        if partner not in recent:
-            return partner.pose, False
-        fit = fit_trajectory(
-            [(f.stamp_ns - frame.stamp_ns) * 1e-9 for f in recent],
-            np.array([f.pose.position_map_m for f in recent]),
-            cfg.degree,
-        )
-        if fit is None or fit.residual_rms_m > cfg.max_residual_m:
-            return partner.pose, False
+        times = np.array([(f.stamp_ns - frame.stamp_ns) * 1e-9 for f in recent])
+        positions = np.array([f.pose.position_map_m for f in recent]).reshape(-1, 3)
+        jitter = estimate_jitter_m(times, positions, cfg.jitter_window_s)
+        if jitter is None or jitter < cfg.min_jitter_m:
+            return partner.pose, False, math.nan if jitter is None else jitter
+        in_window = times >= -cfg.window_s
+        fit = fit_trajectory(times[in_window], positions[in_window], cfg.degree)
+        if partner not in recent or fit is None or fit.residual_rms_m > cfg.max_residual_m:
+            return partner.pose, False, jitter
         rel = fit.at((partner.stamp_ns - frame.stamp_ns) * 1e-9) - fit.at(0.0)
-        return CameraPose(partner.pose.rotation_map_optical, frame.pose.position_map_m + rel), True
+        return CameraPose(partner.pose.rotation_map_optical, frame.pose.position_map_m + rel), True, jitter
 
     def _depth_for_pair(
         self, frame: ColorFrame, partner: ColorFrame, partner_pose: CameraPose, prior_m: float

@@ -6,8 +6,11 @@ A multicopter's path is smooth over a second or two, while jitter is white, so
 a low-degree polynomial fitted (least squares, per axis) to the positions of the
 recent frames gives a much better *relative* translation between two of them.
 
-When the fit residual is larger than ``max_residual_m`` (a sharp manoeuvre the
-polynomial cannot follow, or a pose jump) the raw positions are used instead.
+The fit is used only when the poses do jitter: :func:`estimate_jitter_m`
+measures the jitter from a cubic over the last second, where the flight itself
+leaves millimetres. Exact poses (the bridge's default) are never smoothed, so a
+manoeuvre cannot bias them. When the fit residual is larger than
+``max_residual_m`` (a sharp manoeuvre, a pose jump) the raw positions are used.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 
 from uav_autonomy.core.depth_types import FloatArray
 
-__all__ = ["TrajectoryFit", "fit_trajectory"]
+__all__ = ["TrajectoryFit", "estimate_jitter_m", "fit_trajectory"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,7 +50,7 @@ class TrajectoryFit:
         return np.asarray(powers @ self.coeffs, dtype=np.float64)
 
 
-def fit_trajectory(times_s: Sequence[float], positions_m: FloatArray, degree: int) -> TrajectoryFit | None:
+def fit_trajectory(times_s: Sequence[float] | FloatArray, positions_m: FloatArray, degree: int) -> TrajectoryFit | None:
     """Least-squares polynomial of ``degree`` through ``(times_s, positions_m (N, 3))``.
 
     Returns None with fewer than ``degree + 3`` finite samples (too few to beat the raw poses)
@@ -69,3 +72,24 @@ def fit_trajectory(times_s: Sequence[float], positions_m: FloatArray, degree: in
     resid = p - vander @ coeffs
     rms = float(np.sqrt(np.mean(np.sum(resid * resid, axis=1))))
     return TrajectoryFit(np.asarray(coeffs, dtype=np.float64), t0, scale, rms, len(t))
+
+
+def estimate_jitter_m(times_s: Sequence[float] | FloatArray, positions_m: FloatArray, window_s: float) -> float | None:
+    """White position jitter (per-axis standard deviation, metres) of the samples of the last ``window_s``.
+
+    A cubic over a short window follows any real flight (its residual from the
+    motion itself is millimetres), so what remains is the jitter:
+    ``sigma = rms_3d / sqrt(3) * sqrt(N / (N - 4))``. None with fewer than 7 samples.
+    """
+    t = np.asarray(times_s, dtype=np.float64)
+    p = np.asarray(positions_m, dtype=np.float64)
+    if len(t) == 0:
+        return None
+    recent = t >= t.max() - window_s
+    if int(recent.sum()) < 7:
+        return None
+    fit = fit_trajectory(t[recent], p[recent], 3)
+    if fit is None:
+        return None
+    n = fit.samples
+    return fit.residual_rms_m / math.sqrt(3.0) * math.sqrt(n / (n - 4))

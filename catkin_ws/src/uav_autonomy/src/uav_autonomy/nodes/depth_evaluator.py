@@ -11,7 +11,7 @@ ROS interface:
 Subscribes:
     ``~estimate_topic`` (sensor_msgs/Image 32FC1, default ``/depth_estimator/depth/image_raw``).
     ``/cameras/<camera>/depth/image_raw`` (sensor_msgs/Image 32FC1, ground truth).
-    ``/cameras/<camera>/instance/image_raw`` (sensor_msgs/Image 16UC1), only with ``~objects_file``.
+    ``/cameras/<camera>/instance/image_raw`` (sensor_msgs/Image 16UC1), for the per-class breakdown.
 Publishes:
     ``~metrics`` (uav_msgs/DepthMetrics), one per evaluated estimate.
 Parameters:
@@ -20,7 +20,9 @@ Parameters:
     ``~camera`` (str, default ``nadir``).
     ``~estimate_topic`` (str, default ``/depth_estimator/depth/image_raw``).
     ``~objects_file`` (str, default ""): the world's object list (``objects.json``:
-    ``instance_id`` -> ``class``); without it the per-class entries are empty.
+    ``instance_id`` -> ``class``). When empty, ``<world_dir>/objects.json`` is used as soon
+    as the parameter named by ``~world_dir_param`` (default ``/sim_bridge/world_dir``, set by
+    the sim bridge) exists. Without an object list the per-class entries are empty.
     ``~run_dir`` (str, default ""): when set, per-frame JSON lines go to
     ``<run_dir>/depth_metrics.jsonl`` and the aggregate to ``<run_dir>/depth_summary.json``.
 
@@ -32,6 +34,7 @@ moved ``_GIVE_UP_S`` past it, the estimate is dropped and counted.
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -78,12 +81,15 @@ class DepthEvaluatorNode:
         estimate_topic: str,
         lut: npt.NDArray[np.int16] | None,
         run_log: DepthRunLog | None,
+        world_dir_param: str = "",
     ) -> None:
         self.config = config
         self.camera_name = camera_name
         self.estimate_topic = estimate_topic
         self.lut = lut
         self.run_log = run_log
+        self.world_dir_param = world_dir_param
+        self._next_lut_try_s = 0.0
         self._lock = threading.Lock()
         self._truth: StampBuffer[npt.NDArray[np.float32]] = StampBuffer(_TRUTH_CAPACITY)
         self._instances: StampBuffer[npt.NDArray[np.uint16]] = StampBuffer(_TRUTH_CAPACITY)
@@ -97,7 +103,7 @@ class DepthEvaluatorNode:
         self.pub = rospy.Publisher("~metrics", DepthMetrics, queue_size=10)
         base = f"/cameras/{self.camera_name}"
         rospy.Subscriber(f"{base}/depth/image_raw", Image, self.on_truth, queue_size=10, buff_size=2**25)
-        if self.lut is not None:
+        if self.lut is not None or self.world_dir_param:
             rospy.Subscriber(f"{base}/instance/image_raw", Image, self.on_instances, queue_size=10, buff_size=2**24)
         rospy.Subscriber(self.estimate_topic, Image, self.on_estimate, queue_size=10, buff_size=2**25)
         rospy.on_shutdown(self.shutdown)
@@ -118,7 +124,25 @@ class DepthEvaluatorNode:
             self._instances.put(msg.header.stamp.to_nsec(), inst)
         self._drain()
 
+    def _ensure_lut(self) -> None:
+        """Load the object list named by the sim bridge's world folder, once it is known (retried every 5 s)."""
+        if self.lut is not None or not self.world_dir_param or time.monotonic() < self._next_lut_try_s:
+            return
+        self._next_lut_try_s = time.monotonic() + 5.0
+        world_dir = rospy.get_param(self.world_dir_param, "")
+        if not world_dir:
+            return
+        try:
+            lut = _load_lut(str(Path(world_dir) / "objects.json"), self.config)
+        except ConfigError as err:
+            rospy.logwarn_throttle(30.0, f"depth_evaluator: no per-class metrics: {err}")
+            return
+        with self._lock:
+            self.lut = lut
+        rospy.loginfo(f"depth_evaluator: classes from {world_dir}/objects.json")
+
     def on_estimate(self, msg: Image) -> None:
+        self._ensure_lut()
         est = self._convert(msg, image_to_depth_m)
         if est is None:
             return
@@ -232,9 +256,10 @@ def main() -> None:
         estimate_topic=str(rospy.get_param("~estimate_topic", "/depth_estimator/depth/image_raw")),
         lut=lut,
         run_log=run_log,
+        world_dir_param=str(rospy.get_param("~world_dir_param", "/sim_bridge/world_dir")),
     )
     node.start()
-    classes = "on" if lut is not None else "off (no ~objects_file)"
+    classes = "on" if lut is not None else "from the sim bridge's world_dir when it is set"
     log = f"in {run_log.run_dir}" if run_log else "off"
     rospy.loginfo(f"depth_evaluator: running on camera {camera!r}; classes {classes}; run log {log}")
     rospy.spin()

@@ -236,6 +236,7 @@ def estimator_status_msg(
         for name in ("baseline_m", "baseline_ratio", "rotation_deg", "axial_angle_deg", "depth_prior_m", "coverage"):
             setattr(msg, name, nan)
         msg.refine_rms_before_px = msg.refine_rms_after_px = msg.refine_correction_deg = nan
+        msg.pose_jitter_m = nan
         return msg
     msg.last_partner_stamp.secs, msg.last_partner_stamp.nsecs = divmod(last.partner_stamp_ns, 10**9)
     msg.baseline_m = last.geometry.baseline_m
@@ -250,6 +251,8 @@ def estimator_status_msg(
     msg.refine_rms_before_px = refine.rms_before_px if refine is not None else nan
     msg.refine_rms_after_px = refine.rms_after_px if refine is not None else nan
     msg.refine_correction_deg = refine.correction_deg if refine is not None else nan
+    msg.pose_smoothed = last.pose_smoothed
+    msg.pose_jitter_m = last.pose_jitter_m
     return msg
 
 
