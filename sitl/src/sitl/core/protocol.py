@@ -1,7 +1,7 @@
 """The MAVLink numbers the autopilot core reasons about, as enums.
 
 The core stays free of pymavlink (it never sees a message object); these values
-are the MAVLink common dialect's, and ``tests/unit/sitl/test_protocol.py``
+are the MAVLink common dialect's, and ``tests/unit/sitl/test_sitl_protocol_and_modes.py``
 checks every one of them against pymavlink's generated constants.
 """
 

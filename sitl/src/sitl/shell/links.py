@@ -140,7 +140,7 @@ def frame_v2(msg: Any, seq: int, system_id: int, component_id: int) -> bytes:
     The generated ``pack`` computes the payload and hands it to ``_pack``; the
     payload is taken from there, then header, trailing-zero truncation and the
     CRC (with the message's CRC_EXTRA) are done here. Checked against pymavlink
-    for every message we send (tests/unit/sitl/test_links.py).
+    for every message we send (tests/unit/sitl/test_sitl_links.py).
     """
     msg._pack = _return_payload
     try:

@@ -12,8 +12,7 @@ from typing import Any
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from unit.sitl.sitl_builders import Client
-from unit.sitl.test_gateway import PEER, Rig
+from unit.sitl.sitl_builders import PEER, Client, Rig
 
 from sitl.core.modes import FlightMode
 from sitl.shell.links import Received, mavlink

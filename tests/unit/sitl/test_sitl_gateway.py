@@ -7,54 +7,13 @@ import struct
 from typing import Any
 
 import pytest
-from unit.sitl.sitl_builders import Client, FakeLink, make_vehicle
+from unit.sitl.sitl_builders import Client, Rig
 
-from sitl.config import StreamProfile
 from sitl.core.modes import FlightMode
 from sitl.shell.encode import AUTOPILOT_CAPABILITIES, statustext_chunks
-from sitl.shell.gateway import Gateway
-from sitl.shell.links import Received, mavlink
-from sitl.vehicle import Vehicle
+from sitl.shell.links import mavlink
 
 NAN = math.nan
-PEER = ("127.0.0.1", 14550)
-
-
-class Rig:
-    def __init__(self, *, key: bytes | None = None, **overrides: Any) -> None:
-        self.v: Vehicle = make_vehicle(**overrides)
-        self.gcs = FakeLink("gcs", signing_key=key)
-        self.api = FakeLink("api")
-        self.persisted: list[dict[str, float]] = []
-        self.gw = Gateway(
-            self.v,
-            {"gcs": (self.gcs, StreamProfile.NORMAL), "api": (self.api, StreamProfile.ONBOARD)},
-            system_id=1,
-            component_id=1,
-            unix_epoch_s=1.7e9,
-            persist_params=self.persisted.append,
-        )
-        self.client = Client()
-        for _ in range(5):
-            self.step()
-
-    def step(self) -> None:
-        self.v.step(self.v.t_s)
-        self.gw.after_step(self.v.t_s)
-
-    def feed(self, msg: Any, *, link: FakeLink | None = None, client: Client | None = None) -> None:
-        link = link or self.gcs
-        data = (client or self.client).frame(msg)
-        route = (link.name, PEER)
-        for parsed in link.parse(data, route, datagram=True):
-            self.gw.handle(Received(parsed, route), self.v.t_s)
-
-    def cmd(self, command: int, *params: float, target: tuple[int, int] = (1, 1)) -> Any:
-        p = [*params, *([0.0] * 7)][:7]
-        self.gcs.clear()
-        self.feed(self.client.mav.command_long_encode(*target, command, 0, *p))
-        acks = self.gcs.of_type("COMMAND_ACK")
-        return acks[0] if acks else None
 
 
 @pytest.fixture(scope="module")
