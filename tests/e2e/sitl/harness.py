@@ -13,9 +13,10 @@ from pathlib import Path
 
 from helpers.procs import Proc, free_port, free_udp_port
 
-os.environ.setdefault("MAVLINK20", "1")
+os.environ["MAVLINK20"] = "1"
 
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,7 @@ def _wait_udp_bound(port: int, proc: Proc, timeout_s: float = 30.0) -> None:
 def connect(port: int, *, source_system: int = 255, source_component: int = 190) -> mavutil.mavfile:
     """A pymavlink GCS listening where the SITL sends (``udpin``), after the first heartbeat."""
     conn = mavutil.mavlink_connection(
-        f"udpin:127.0.0.1:{port}", source_system=source_system, source_component=source_component
+        f"udpin:127.0.0.1:{port}", dialect="common", source_system=source_system, source_component=source_component
     )
     hb = conn.wait_heartbeat(timeout=30)
     if hb is None:
@@ -124,7 +125,7 @@ class Gcs:
             del self._chunks[chunk_id]
 
     def heartbeat(self) -> None:
-        self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         self._last_hb = time.monotonic()
 
     def pump(self, timeout_s: float = 0.05, *, heartbeats: bool = True) -> None:
@@ -182,7 +183,7 @@ class Gcs:
 
     def set_param(self, name: str, value: float, *, integer: bool = False) -> None:
         wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if integer else float(value)
-        ptype = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+        ptype = mavlink2.MAV_PARAM_TYPE_INT32 if integer else mavlink2.MAV_PARAM_TYPE_REAL32
         self.conn.mav.param_set_send(1, 1, name.encode(), wire, ptype)
         self.wait("PARAM_VALUE", lambda m: m.param_id == name and m.param_value == wire)
 

@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 from e2e.sitl.harness import Gcs, run_sitl
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 pytestmark = pytest.mark.slow
 
-M = mavutil.mavlink
+M = mavlink2
 LOITER = (4 << 16) | (3 << 24)
 RTL = (4 << 16) | (5 << 24)
 LAND = (4 << 16) | (6 << 24)
@@ -95,7 +96,9 @@ def test_geofence_breach_then_collision(tmp_path: Path) -> None:
     extra = ["--set", "failsafe.geofence_radius_m=25"]
     with run_sitl("failsafe_fence_collision", tmp_path, speed=SPEED, extra=extra) as sitl:
         gcs = Gcs.listen(sitl.ports.gcs)
-        sim = mavutil.mavlink_connection(f"udpout:127.0.0.1:{sitl.ports.sim}", source_system=1, source_component=200)
+        sim = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{sitl.ports.sim}", dialect="common", source_system=1, source_component=200
+        )
         sim.mav.heartbeat_send(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         assert sim.recv_match(type="ODOMETRY", blocking=True, timeout=10) is not None
         # a lockstep grant outside lockstep is DENIED (docs/architecture.md)

@@ -10,10 +10,11 @@ from typing import Any
 import pytest
 from e2e.sitl.harness import Gcs, run_sitl
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 pytestmark = pytest.mark.slow
 
-M = mavutil.mavlink
+M = mavlink2
 SIM_STEP = 31010
 
 
@@ -21,7 +22,9 @@ class StepMaster:
     """The lockstep master on the simulation link (what the sensor bridge does)."""
 
     def __init__(self, port: int) -> None:
-        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=200)
+        self.conn = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", dialect="common", source_system=1, source_component=200
+        )
         self.conn.mav.heartbeat_send(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
     def grant(self, steps: int, timeout_s: float = 10.0) -> list[Any]:

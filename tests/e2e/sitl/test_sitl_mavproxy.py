@@ -84,7 +84,7 @@ def test_mavproxy_params_mode_arm(tmp_path: Path) -> None:
     workdir = artifacts_dir() / "mavproxy"
     workdir.mkdir(parents=True, exist_ok=True)
     with run_sitl("mavproxy_sitl", tmp_path, speed="3") as sitl:
-        observer = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.ports.tcp}", source_system=250)
+        observer = mavutil.mavlink_connection(f"tcp:127.0.0.1:{sitl.ports.tcp}", dialect="common", source_system=250)
         mp = MavProxy(f"udpin:127.0.0.1:{sitl.ports.gcs}", workdir)
         try:
             mp.expect(r"online system 1")

@@ -18,10 +18,11 @@ from pathlib import Path
 import pytest
 from e2e.sitl.harness import Gcs, run_sitl
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 pytestmark = pytest.mark.slow
 
-M = mavutil.mavlink
+M = mavlink2
 KEY_HEX = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
 
 
@@ -107,7 +108,9 @@ def test_fuzzed_ports_and_signed_link(tmp_path: Path) -> None:
         assert gcs.wait("PARAM_VALUE").param_value == 2.5  # type: ignore[attr-defined]
 
         # the signed API link: unsigned commands are rejected, signed ones work, telemetry is signed
-        api = mavutil.mavlink_connection(f"udpin:127.0.0.1:{ports.api}", source_system=245, source_component=190)
+        api = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{ports.api}", dialect="common", source_system=245, source_component=190
+        )
         assert api.wait_heartbeat(timeout=10) is not None
         api.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
         assert api.recv_match(type="COMMAND_ACK", blocking=True, timeout=2) is None, "unsigned arm must be ignored"
