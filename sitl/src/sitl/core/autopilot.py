@@ -16,13 +16,10 @@ autopilot wants to say goes to :attr:`statustexts` and the other outboxes.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 from sitl.core.control import (
-    GRAVITY_MPS2,
     ControlGains,
     Mixer,
-    MotionLimits,
     PositionController,
     RateController,
     Setpoint,
@@ -117,7 +114,6 @@ class Autopilot:
         self.battery_remaining = 1.0
         self.est: LocalState | None = None
         self.last_nav: NavOutput | None = None
-        self.on_disarm: Callable[[], None] | None = None
         self._task: Task | None = None
         self._offboard_sp: Setpoint | None = None
         self._manual: ManualInput | None = None
@@ -279,8 +275,6 @@ class Autopilot:
         self._idle = True
         self._status_changed()
         self.say(MavSeverity.INFO, text)
-        if self.on_disarm is not None:
-            self.on_disarm()
 
     def set_mode(self, mode: FlightMode, *, quiet: bool = False) -> MavResult:
         if mode is self.mode:
@@ -437,7 +431,6 @@ class Autopilot:
         if self.crashed:
             return
         self.crashed = True
-        was_armed = self.armed
         self.armed = False
         self._thrust = 0.0
         self._idle = True
@@ -446,8 +439,6 @@ class Autopilot:
             MavSeverity.EMERGENCY,
             f"Collision (world object {world_id}): crashed, disarmed",
         )
-        if was_armed and self.on_disarm is not None:
-            self.on_disarm()
 
     def mission_uploaded(self) -> None:
         """The mission store changed: restart progress; leave AUTO.MISSION if it became empty."""
@@ -717,11 +708,3 @@ class Autopilot:
         rate_sp = attitude_rate_setpoint(q, self._q_sp, self._yaw_rate_ff, self.gains)
         torque = self._rate_ctrl.update(rate_sp, rates, dt_s, self.gains, integrate=not self.landed)
         return self._mixer.mix(self._thrust, torque, voltage_scale)
-
-    @property
-    def motion_limits(self) -> MotionLimits | None:
-        return self.last_nav.limits if self.last_nav is not None else None
-
-    @staticmethod
-    def hover_specific_force() -> float:
-        return GRAVITY_MPS2

@@ -101,7 +101,6 @@ class Gateway:
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
         }
         self._next_due_s = 0.0
-        self.ap.on_disarm = None
 
     # ================================================================== inbound
     def handle(self, rx: Received, wall_s: float) -> None:
