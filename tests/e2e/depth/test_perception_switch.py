@@ -1,0 +1,71 @@
+"""One launch argument switches what feeds the map server (real roslaunch, roscore and map server)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+import rosgraph
+from helpers.procs import REPO, Proc, roscore
+
+LAUNCH = REPO / "catkin_ws" / "src" / "uav_autonomy" / "launch" / "perception.launch"
+
+
+def graph() -> tuple[dict[str, set[str]], set[str]]:
+    """``(topic -> subscriber nodes, node names)`` from the master."""
+    _pubs, subs, _srvs = rosgraph.Master("/depth_switch_check").getSystemState()
+    nodes = {n for _t, ns in subs for n in ns}
+    return {t: set(ns) for t, ns in subs}, nodes
+
+
+def wait_subscribed(topic: str, node: str, proc: Proc, timeout_s: float = 30.0) -> dict[str, set[str]]:
+    deadline = time.monotonic() + timeout_s
+    subs: dict[str, set[str]] = {}
+    while time.monotonic() < deadline:
+        assert proc.alive(), proc.tail()
+        subs, _ = graph()
+        if node in subs.get(topic, set()):
+            return subs
+        time.sleep(0.2)
+    raise AssertionError(f"{node} never subscribed to {topic}; subscriptions: {subs}\n{proc.tail()}")
+
+
+@pytest.mark.parametrize(
+    ("source", "cloud", "depth_nodes"),
+    [
+        ("ground_truth", "/cameras/nadir/points", False),
+        ("estimated", "/depth_estimator/points", True),
+    ],
+)
+def test_depth_source_switches_the_map_input(source: str, cloud: str, depth_nodes: bool, tmp_path: Path) -> None:
+    with roscore(f"roscore_switch_{source}") as env:
+        proc = Proc(
+            f"perception_switch_{source}",
+            ["roslaunch", str(LAUNCH), f"depth_source:={source}", f"autosave_path:={tmp_path / 'map.bt'}"],
+            env=env,
+        )
+        try:
+            subs = wait_subscribed(cloud, "/map_server", proc)
+            other = "/depth_estimator/points" if source == "ground_truth" else "/cameras/nadir/points"
+            assert "/map_server" not in subs.get(other, set())
+            if depth_nodes:
+                subs = wait_subscribed("/cameras/nadir/color/image_raw", "/depth_estimator", proc)
+                assert "/depth_evaluator" in subs.get("/depth_estimator/depth/image_raw", set())
+            else:
+                time.sleep(1.0)
+                _, nodes = graph()
+                assert "/depth_estimator" not in nodes
+                assert "/depth_evaluator" not in nodes
+        finally:
+            proc.stop()
+
+
+def test_a_bad_depth_source_fails_the_launch() -> None:
+    with roscore("roscore_switch_bad") as env:
+        proc = Proc("perception_switch_bad", ["roslaunch", str(LAUNCH), "depth_source:=lidar"], env=env)
+        try:
+            assert proc.wait(30.0) != 0
+        finally:
+            proc.stop()
+        assert "lidar" in proc.log_text()
