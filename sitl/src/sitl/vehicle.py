@@ -112,7 +112,9 @@ class Vehicle:
         self.duty: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
         self._truth: VehicleState | None = None
         self._truth_step = -1
-        self.est: LocalState = self.estimator.update(self.truth())
+        self._truth_pos: tuple[float, float, float] | None = None
+        self._truth_pos_step = -1
+        self.est: LocalState = self.estimator.update(self.truth(), self.pos_ned_truth_m)
         self._esc_eff = b.esc_efficiency
         self._avionics_w = b.avionics_power_w
         self._vmax = phys.motor_max_voltage_v
@@ -131,15 +133,19 @@ class Vehicle:
 
     @property
     def pos_ned_truth_m(self) -> tuple[float, float, float]:
-        s = self.truth()
-        return self.projection.to_ned(GeoPoint(s.lat_deg, s.lon_deg, s.alt_amsl_m))
+        """True position in LOCAL_NED (cached per step, like :meth:`truth`)."""
+        if self._truth_pos_step != self.steps or self._truth_pos is None:
+            s = self.truth()
+            self._truth_pos = self.projection.to_ned(GeoPoint(s.lat_deg, s.lon_deg, s.alt_amsl_m))
+            self._truth_pos_step = self.steps
+        return self._truth_pos
 
     def step(self, wall_s: float) -> None:
         """Advance one physics step (``dt_s``)."""
         ap = self.autopilot
         battery = self.battery
         if self.steps % self.divider == 0:
-            self.est = self.estimator.update(self.truth())
+            self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
             ap.outer_update(self.t_s, wall_s, self.est, battery.soc)
         q, rates = self.fdm.attitude_and_rates()
         voltage = battery.terminal_voltage_v
@@ -171,4 +177,5 @@ class Vehicle:
         clamped = min(elevation_m, gear_bottom_amsl)
         self.fdm.set_terrain_amsl(clamped)
         self._truth_step = -1
+        self._truth_pos_step = -1
         return clamped == elevation_m

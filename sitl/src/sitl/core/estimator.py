@@ -61,8 +61,11 @@ class Estimator:
     def gps_ok(self) -> bool:
         return self._last_t is None or self._last_t >= self._dropout_until
 
-    def update(self, truth: VehicleState) -> LocalState:
-        n, e, d = self.projection.to_ned(GeoPoint(truth.lat_deg, truth.lon_deg, truth.alt_amsl_m))
+    def update(self, truth: VehicleState, truth_ned_m: tuple[float, float, float] | None = None) -> LocalState:
+        """The estimate for ``truth``; ``truth_ned_m`` is its LOCAL_NED position if already known."""
+        if truth_ned_m is None:
+            truth_ned_m = self.projection.to_ned(GeoPoint(truth.lat_deg, truth.lon_deg, truth.alt_amsl_m))
+        n, e, d = truth_ned_m
         if self.noise is None:
             self._last_t = truth.t_s
             return LocalState(truth, (n, e, d), True)

@@ -101,6 +101,7 @@ class Gateway:
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
         }
         self._next_due_s = 0.0
+        self._stream_links = [(self.streams[name], self.links[name]) for name in self.streams]
 
     # ================================================================== inbound
     def handle(self, rx: Received, wall_s: float) -> None:
@@ -422,19 +423,18 @@ class Gateway:
         t = self.v.t_s
         if t >= self._next_due_s:
             cache: dict[int, Any] = {}
-            for name, sched in self.streams.items():
-                due = sched.due(t)
-                if not due:
-                    continue
-                link = self.links[name]
-                for msg_id in due:
-                    m = cache.get(msg_id)
-                    if m is None:
-                        m = self.encoder.build(msg_id)
-                        cache[msg_id] = m
-                    if m is not None:
-                        link.send(m)
-            self._next_due_s = min((s.next_due_s for s in self.streams.values()), default=math.inf)
+            next_due = math.inf
+            for sched, link in self._stream_links:
+                if t >= sched.next_due_s:
+                    for msg_id in sched.due(t):
+                        m = cache.get(msg_id)
+                        if m is None:
+                            m = self.encoder.build(msg_id)
+                            cache[msg_id] = m
+                        if m is not None:
+                            link.send(m)
+                next_due = min(next_due, sched.next_due_s)
+            self._next_due_s = next_due
         if self.ap.events_pending:
             self.flush_events()
         if self.ap.mission_server.upload_in_progress:

@@ -68,14 +68,15 @@ class SimLink:
         with contextlib.suppress(OSError):
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         self.local_port = int(self.sock.getsockname()[1])
-        self.period_s = 1.0 / rate_hz
+        # whole physics steps between state messages (50 Hz at 250 Hz physics: every 5th step,
+        # the same steps at which the outer loop samples the state, so the truth is computed once)
+        self.period_steps = max(1, round(1.0 / (rate_hz * vehicle.dt_s)))
         self.peer_timeout_s = peer_timeout_s
         self.lockstep = lockstep
         self.max_steps = max_steps_per_grant
         self.system_id = system_id
         self._clock = clock
         self._peers: dict[tuple[str, int], float] = {}
-        self._next_state_s = 0.0
         self._next_heartbeat_s = 0.0
         self._last_status = -1
         self.grants: list[Grant] = []
@@ -174,8 +175,7 @@ class SimLink:
     def after_step(self) -> None:
         """Free-run: state at ``rate_hz``, heartbeat at 1 Hz and on change (simulation time)."""
         t = self.v.t_s
-        if not self.lockstep and t >= self._next_state_s:
-            self._next_state_s = max(self._next_state_s + self.period_s, t)
+        if not self.lockstep and self.v.steps % self.period_steps == 0:
             self.send_state()
         self._maybe_heartbeat(t)
 
@@ -222,9 +222,15 @@ class SimLink:
         act = f.hil_actuator_controls_encode(
             int(s.t_s * 1e6), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
         )
-        # one message per datagram on this link: the simplest contract for the bridge's parser
-        for msg in (self.encoder.odometry(truth=True), hil, act):
-            self._send(msg, peers)
+        # the three messages of one instant share a datagram (a MAVLink parser reads them in turn)
+        frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))
+        for peer in peers:
+            try:
+                self.sock.sendto(frames, peer)
+                self.link.stats.tx_messages += 3
+                self.link.stats.tx_bytes += len(frames)
+            except OSError:
+                self.link.stats.tx_errors += 1
         self._maybe_heartbeat(v.t_s)
 
     def close(self) -> None:
