@@ -341,13 +341,17 @@ def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: Contr
     if ew < 0.0:
         ex, ey, ez = -ex, -ey, -ez
     mr, mp, my = gains.max_rates_radps
-    p = _clamp(2.0 * gains.roll_p * ex, mr)
-    qr = _clamp(2.0 * gains.pitch_p * ey, mp)
+    p = 2.0 * gains.roll_p * ex
+    qr = 2.0 * gains.pitch_p * ey
     r = 2.0 * gains.yaw_p * ez
     if not math.isnan(yaw_rate_ff):
         # feed-forward the yaw rate, expressed in the body frame (approximately along body z)
         r += yaw_rate_ff
-    return p, qr, _clamp(r, my)
+    # clamp to the rate limits (written out: this runs every step)
+    p = mr if p > mr else (-mr if p < -mr else p)
+    qr = mp if qr > mp else (-mp if qr < -mp else qr)
+    r = my if r > my else (-my if r < -my else r)
+    return p, qr, r
 
 
 class RateController:
@@ -371,12 +375,16 @@ class RateController:
         kp_p, ki_p, kd_p = gains.pitch_rate_pid
         kp_y, ki_y, _ = gains.yaw_rate_pid
         if integrate:
+            lim = self.INTEGRAL_LIMIT
             if ki_r > 0.0:
-                self._ip = _clamp(self._ip + ep * dt_s, self.INTEGRAL_LIMIT / ki_r)
+                v, m = self._ip + ep * dt_s, lim / ki_r
+                self._ip = m if v > m else (-m if v < -m else v)
             if ki_p > 0.0:
-                self._iq = _clamp(self._iq + eq * dt_s, self.INTEGRAL_LIMIT / ki_p)
+                v, m = self._iq + eq * dt_s, lim / ki_p
+                self._iq = m if v > m else (-m if v < -m else v)
             if ki_y > 0.0:
-                self._ir = _clamp(self._ir + er * dt_s, self.INTEGRAL_LIMIT / ki_y)
+                v, m = self._ir + er * dt_s, lim / ki_y
+                self._ir = m if v > m else (-m if v < -m else v)
         prev = self._prev if self._prev is not None else rates
         self._prev = rates
         dp = (rates[0] - prev[0]) / dt_s
@@ -430,16 +438,12 @@ class Mixer:
             yaw = -min(-yaw, b0 - idle, b1 - idle, 1.0 - b2, 1.0 - b3)
             yaw = min(yaw, 0.0)
         inv = self._inv_exp
-        o0 = min(1.0, max(idle, b0 + yaw))
-        o1 = min(1.0, max(idle, b1 + yaw))
-        o2 = min(1.0, max(idle, b2 - yaw))
-        o3 = min(1.0, max(idle, b3 - yaw))
-        return (
-            min(1.0, o0**inv * voltage_scale),
-            min(1.0, o1**inv * voltage_scale),
-            min(1.0, o2**inv * voltage_scale),
-            min(1.0, o3**inv * voltage_scale),
-        )
+        out = []
+        for o in (b0 + yaw, b1 + yaw, b2 - yaw, b3 - yaw):
+            o = 1.0 if o > 1.0 else (idle if o < idle else o)  # noqa: PLW2901
+            d = o**inv * voltage_scale
+            out.append(1.0 if d > 1.0 else d)
+        return out[0], out[1], out[2], out[3]
 
     def idle(self, voltage_scale: float) -> tuple[float, float, float, float]:
         d = min(1.0, self.idle_thrust**self._inv_exp * voltage_scale)
