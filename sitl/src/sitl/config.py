@@ -151,7 +151,7 @@ class BatteryConfig:
     """LiPo pack: capacity, cells, open-circuit voltage curve, internal resistance."""
 
     cells: int = 4
-    capacity_mah: float = 4000.0
+    capacity_mah: float = 3500.0
     internal_resistance_ohm: float = 0.03
     ocv_curve: tuple[tuple[float, float], ...] = _DEFAULT_OCV
     initial_soc: float = 1.0

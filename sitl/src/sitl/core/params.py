@@ -74,7 +74,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "BAT1_CAPACITY",
         ParamType.REAL32,
-        4000.0,
+        3500.0,
         100.0,
         100000.0,
         "mAh",
