@@ -74,3 +74,38 @@ def test_target_from_points() -> None:
     assert target_from_points([Point(1.0, 2.0, 9.0)]).points_xy_m == ((1.0, 2.0),)
     with pytest.raises(InvalidInputError):
         target_from_points([Point(0, 0, 0), Point(1, 0, 0)])
+
+
+def _mavlink_frame(name: str, *fields: float) -> object:
+    """A decoded MAVLink 2 message from the autopilot (1/1), as the link would receive it."""
+    from pymavlink.dialects.v20 import common as mavlink2  # noqa: PLC0415
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    packed = getattr(mav, f"{name}_encode")(*fields).pack(mav)
+    return mav.decode(bytearray(packed))
+
+
+def test_odometry_from_autopilot_telemetry_is_enu_flu() -> None:
+    from uav_autonomy.ros.autonomy_conversions import odometry_msg  # noqa: PLC0415
+    from uav_autonomy.ros.autonomy_mavlink import MavlinkLink  # noqa: PLC0415
+
+    link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, source_component=191, target_system=1,
+                       target_component=1, reconnect_after_s=5.0)  # fmt: skip
+    assert link.odometry() is None
+    # NED (10 N, 5 E, 20 up), flying north at 2 m/s while heading east (NED yaw +90 deg), yawing right.
+    link._handle(_mavlink_frame("local_position_ned", 1000, 10.0, 5.0, -20.0, 2.0, 0.0, 0.0), 3.0)
+    link._handle(_mavlink_frame("attitude", 1000, 0.0, 0.0, math.pi / 2, 0.0, 0.0, 0.3), 3.0)
+    odom = link.odometry()
+    assert odom is not None
+    assert odom.stamp_s == 3.0
+    np.testing.assert_allclose(odom.position_enu_m, (5.0, 10.0, 20.0), atol=1e-9)
+    # Heading east is ENU yaw 0: identity attitude.
+    np.testing.assert_allclose(np.abs(odom.q_enu_flu_wxyz), (1.0, 0.0, 0.0, 0.0), atol=1e-6)  # float32 on the wire
+    # North is the body's left: +y in FLU. Yawing right (FRD +z) is FLU -z.
+    np.testing.assert_allclose(odom.velocity_flu_mps, (0.0, 2.0, 0.0), atol=1e-6)
+    np.testing.assert_allclose(odom.angular_flu_radps, (0.0, 0.0, -0.3), atol=1e-9)
+    msg = odometry_msg(odom, Header(frame_id="map"))
+    assert (msg.header.frame_id, msg.child_frame_id) == ("map", "base_link")
+    assert (msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z) == (5.0, 10.0, 20.0)
+    assert abs(msg.pose.pose.orientation.w) == pytest.approx(1.0)
+    assert msg.twist.twist.linear.y == pytest.approx(2.0)

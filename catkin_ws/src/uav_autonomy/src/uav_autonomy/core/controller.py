@@ -105,6 +105,7 @@ class ControllerConfig:
     lookahead_m: float = 25.0
     scripted_altitude_m: float = 50.0
     state_rate_hz: float = 5.0
+    odom_rate_hz: float = 20.0
     battery_capacity_mah: float | None = None
 
     def __post_init__(self) -> None:
@@ -130,6 +131,9 @@ class ControllerConfig:
             if not (math.isfinite(value) and value > 0.0):
                 msg = f"{name} must be a finite number > 0, got {value}"
                 raise ValueError(msg)
+        if not (math.isfinite(self.odom_rate_hz) and self.odom_rate_hz >= 0.0):
+            msg = f"odom_rate_hz must be >= 0 (0 = do not publish odometry), got {self.odom_rate_hz}"
+            raise ValueError(msg)
         if not (math.isfinite(self.lookahead_m) and self.lookahead_m >= 0.0):
             msg = f"lookahead_m must be >= 0 (0 = send waypoints as they are), got {self.lookahead_m}"
             raise ValueError(msg)

@@ -9,6 +9,9 @@ Subscribes:
 Publishes:
     ``/uav/controller/state`` (uav_msgs/ControllerState) at ``state_rate_hz`` and on every event.
     ``/uav/battery`` (sensor_msgs/BatteryState) from BATTERY_STATUS / SYS_STATUS, 1 Hz.
+    ``/uav/controller/odom`` (nav_msgs/Odometry, map -> base_link) the autopilot's own estimate
+    (LOCAL_POSITION_NED + ATTITUDE) at up to ``odom_rate_hz``: the pose source of the planner and
+    the evaluator when no simulator bridge publishes ground truth (a real vehicle, or the e2e tests).
 Services:
     ``~set_state`` (uav_msgs/SetControllerState): IDLE TAKEOFF AUTONOMOUS SCRIPTED MANUAL HOLD RTL LAND.
 Parameters:
@@ -28,6 +31,7 @@ from pathlib import Path
 
 import rospy
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Header
@@ -38,6 +42,7 @@ from uav_autonomy.errors import InvalidInputError, InvalidTransitionError, UavAu
 from uav_autonomy.ros.autonomy_conversions import (
     battery_msg,
     controller_state_msg,
+    odometry_msg,
     path_from_msg,
     points_from_msgs,
     yaw_from_quaternion,
@@ -93,12 +98,15 @@ class WaypointControllerNode:
         self._lock = threading.Lock()
         self._last_state_pub_s = -math.inf
         self._last_battery_pub_s = -math.inf
+        self._last_odom_pub_s = -math.inf
+        self._last_odom_stamp_s: float | None = None
         self._last_status: ControllerStatus | None = None
 
     def start(self) -> None:
         self.link.open(rospy.get_time())
         self.pub_state = rospy.Publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
         self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=1)
+        self.pub_odom = rospy.Publisher("/uav/controller/odom", Odometry, queue_size=5)
         rospy.Subscriber("/autonomy/path", PathMsg, self.on_path, queue_size=1)
         rospy.Subscriber("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
         rospy.Service("~set_state", SetControllerState, self.on_set_state)
@@ -129,6 +137,7 @@ class WaypointControllerNode:
         if events or status != self._last_status or now - self._last_state_pub_s >= 1.0 / self.config.state_rate_hz:
             self._publish_state(now)
             self._last_status = status
+        self._publish_odometry(now)
         battery = self.link.battery()
         if battery.stamp_s is not None and now - self._last_battery_pub_s >= 1.0:
             self._last_battery_pub_s = now
@@ -142,6 +151,18 @@ class WaypointControllerNode:
                     capacity_mah=self.config.battery_capacity_mah,
                 )
             )
+
+    def _publish_odometry(self, now: float) -> None:
+        rate = self.config.odom_rate_hz
+        if rate <= 0.0 or now - self._last_odom_pub_s < 1.0 / rate:
+            return
+        with self._lock:
+            odom = self.link.odometry()
+        if odom is None or odom.stamp_s == self._last_odom_stamp_s:
+            return  # nothing new: never re-publish an old estimate with a new stamp
+        self._last_odom_pub_s = now
+        self._last_odom_stamp_s = odom.stamp_s
+        self.pub_odom.publish(odometry_msg(odom, Header(stamp=rospy.Time.from_sec(odom.stamp_s), frame_id="map")))
 
     def _publish_state(self, now: float) -> None:
         self._last_state_pub_s = now

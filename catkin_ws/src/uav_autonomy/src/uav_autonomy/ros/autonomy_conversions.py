@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 from geometry_msgs.msg import Point, PointStamped, Pose, PoseStamped, Quaternion
-from nav_msgs.msg import MapMetaData, Path
+from nav_msgs.msg import MapMetaData, Odometry, Path
 from sensor_msgs.msg import BatteryState, Image
 from std_msgs.msg import Header
 
@@ -25,6 +25,7 @@ from uav_autonomy.core.features import Target
 from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.mcdm import GoalDecision
 from uav_autonomy.errors import InvalidInputError
+from uav_autonomy.ros.autonomy_mavlink import OdometryReading
 from uav_msgs.msg import ControllerState, FeatureWeights, GoalReason, GridLayers, SearchTarget
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "grid_layers_from_msg",
     "grid_layers_msg",
     "map_meta_data",
+    "odometry_msg",
     "path_from_msg",
     "path_msg",
     "points_from_msgs",
@@ -230,6 +232,23 @@ def controller_state_msg(status: ControllerStatus, header: Header) -> Controller
     msg.in_air = status.in_air
     msg.link_ok = status.link_ok
     msg.last_event = status.last_event
+    return msg
+
+
+def odometry_msg(odom: OdometryReading, header: Header) -> Odometry:
+    """nav_msgs/Odometry ``map -> base_link`` from the autopilot's estimate (covariances unknown: 0)."""
+    msg = Odometry()
+    msg.header = header
+    msg.child_frame_id = "base_link"
+    p = msg.pose.pose.position
+    p.x, p.y, p.z = odom.position_enu_m
+    w, x, y, z = odom.q_enu_flu_wxyz
+    q = msg.pose.pose.orientation
+    q.x, q.y, q.z, q.w = x, y, z, w
+    v = msg.twist.twist.linear
+    v.x, v.y, v.z = odom.velocity_flu_mps
+    a = msg.twist.twist.angular
+    a.x, a.y, a.z = odom.angular_flu_radps
     return msg
 
 

@@ -27,9 +27,17 @@ from uav_autonomy.core.controller import (
 )
 from uav_autonomy.core.controller_modes import AutopilotFlavor, FlightMode, set_mode_params
 from uav_autonomy.errors import InvalidInputError, MavlinkLinkError
-from uav_common.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
+from uav_common.frames import (
+    enu_to_ned,
+    frd_to_flu,
+    ned_to_enu,
+    quat_ned_frd_to_enu_flu,
+    yaw_enu_to_ned,
+    yaw_ned_to_enu,
+)
+from uav_common.rotations import quat_conjugate, quat_from_euler, rotate
 
-__all__ = ["POSITION_YAW_TYPE_MASK", "BatteryReading", "MavlinkLink"]
+__all__ = ["POSITION_YAW_TYPE_MASK", "BatteryReading", "MavlinkLink", "OdometryReading"]
 
 POSITION_YAW_TYPE_MASK = 2552
 """Ignore velocity, acceleration and yaw rate: position + yaw (MAVROS/MAVSDK use the same)."""
@@ -57,6 +65,26 @@ class BatteryReading:
     stamp_s: float | None = None
 
 
+@dataclass(frozen=True)
+class OdometryReading:
+    """The autopilot's estimate in ROS conventions (``map`` ENU, ``base_link`` FLU).
+
+    Attributes:
+        position_enu_m: LOCAL_POSITION_NED converted to ENU.
+        q_enu_flu_wxyz: ATTITUDE as the FLU body's attitude in ENU, ``[w, x, y, z]`` (identity before any).
+        velocity_flu_mps: LOCAL_POSITION_NED's velocity rotated into the body frame (FLU), as
+            nav_msgs/Odometry wants its twist.
+        angular_flu_radps: ATTITUDE's body rates in FLU.
+        stamp_s: arrival time of the position (caller's clock).
+    """
+
+    position_enu_m: tuple[float, float, float]
+    q_enu_flu_wxyz: tuple[float, float, float, float]
+    velocity_flu_mps: tuple[float, float, float]
+    angular_flu_radps: tuple[float, float, float]
+    stamp_s: float
+
+
 @dataclass
 class _State:
     heartbeat_s: float | None = None
@@ -66,6 +94,9 @@ class _State:
     position_ned: tuple[float, float, float] | None = None
     position_s: float | None = None
     yaw_ned_rad: float | None = None
+    velocity_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    q_ned_frd_wxyz: tuple[float, float, float, float] | None = None
+    rates_frd_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     landed_state: int | None = None
     landed_state_s: float | None = None
     battery: BatteryReading = field(default_factory=BatteryReading)
@@ -164,9 +195,16 @@ class MavlinkLink:
             st.flavor = AutopilotFlavor.from_heartbeat(int(msg.autopilot))  # type: ignore[attr-defined]
         elif mtype == "LOCAL_POSITION_NED":
             st.position_ned = (float(msg.x), float(msg.y), float(msg.z))  # type: ignore[attr-defined]
+            st.velocity_ned_mps = (float(msg.vx), float(msg.vy), float(msg.vz))  # type: ignore[attr-defined]
             st.position_s = now_s
         elif mtype == "ATTITUDE":
-            st.yaw_ned_rad = float(msg.yaw)  # type: ignore[attr-defined]
+            roll, pitch, yaw = float(msg.roll), float(msg.pitch), float(msg.yaw)  # type: ignore[attr-defined]
+            if all(math.isfinite(v) for v in (roll, pitch, yaw)):
+                st.yaw_ned_rad = yaw
+                q = quat_from_euler(roll, pitch, yaw)
+                st.q_ned_frd_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+                rates = (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed))  # type: ignore[attr-defined]
+                st.rates_frd_radps = rates if all(math.isfinite(v) for v in rates) else (0.0, 0.0, 0.0)
         elif mtype == "EXTENDED_SYS_STATE":
             st.landed_state = int(msg.landed_state)  # type: ignore[attr-defined]
             st.landed_state_s = now_s
@@ -211,6 +249,25 @@ class MavlinkLink:
 
     def battery(self) -> BatteryReading:
         return self._st.battery
+
+    def odometry(self) -> OdometryReading | None:
+        """The autopilot's position, attitude and velocities in ROS conventions (None before a position)."""
+        st = self._st
+        if st.position_ned is None or st.position_s is None:
+            return None
+        p = ned_to_enu(st.position_ned)
+        q_ned = st.q_ned_frd_wxyz if st.q_ned_frd_wxyz is not None else (1.0, 0.0, 0.0, 0.0)
+        q = quat_ned_frd_to_enu_flu(q_ned)
+        # World velocity in ENU, then into the FLU body frame (nav_msgs/Odometry's twist is in child_frame_id).
+        v_body = rotate(quat_conjugate(q), ned_to_enu(st.velocity_ned_mps))
+        w = frd_to_flu(st.rates_frd_radps)
+        return OdometryReading(
+            position_enu_m=(float(p[0]), float(p[1]), float(p[2])),
+            q_enu_flu_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+            velocity_flu_mps=(float(v_body[0]), float(v_body[1]), float(v_body[2])),
+            angular_flu_radps=(float(w[0]), float(w[1]), float(w[2])),
+            stamp_s=st.position_s,
+        )
 
     def pop_status_texts(self) -> list[str]:
         out, self._st.status_texts = self._st.status_texts, []
