@@ -98,6 +98,8 @@ class Autopilot:
         self.armed = False
         self.crashed = False
         self.land_detector = LandDetector()
+        # a client acting in wall time (MAVSDK: arm, then takeoff) may need this long at any speed factor
+        self._client_wall_floor_s = datalink_floor_s
         self.failsafe = FailsafeMonitor(
             datalink_floor_s=datalink_floor_s, offboard_floor_s=offboard_floor_s, manual_floor_s=manual_floor_s
         )
@@ -497,7 +499,7 @@ class Autopilot:
                 self._disarm("Disarmed by auto disarm on land")
         else:
             delay = p["COM_DISARM_PRFLT"]
-            wall_needed = max(delay * self.wall_scale, 3.0)
+            wall_needed = max(delay * self.wall_scale, self._client_wall_floor_s)
             if delay > 0.0 and t_s - self._armed_at_s >= delay and wall_s - self._armed_at_wall_s >= wall_needed:
                 self._disarm("Disarmed by auto preflight disarming")
 
