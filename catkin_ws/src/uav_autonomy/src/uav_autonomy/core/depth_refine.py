@@ -4,9 +4,10 @@ SGBM needs rows aligned to a fraction of a pixel, and a 0.1 deg rotation error
 is already half a pixel at 320 px focal length. Poses from a degraded odometry
 are worse than that, so before rectifying:
 
-1. Shi-Tomasi corners of the reference are tracked into the partner with
-   pyramidal Lucas-Kanade, seeded by the prior pose and the depth prior, and
-   kept only if tracking back lands within 0.5 px (forward-backward check).
+1. Shi-Tomasi corners of the reference are tracked with pyramidal Lucas-Kanade
+   into the partner image turned to the reference's orientation (by the prior
+   rotation, so the patches are not rotated), seeded by the prior pose and the
+   depth prior, and kept only if tracking back lands within 0.5 px.
 2. The relative rotation (3 DoF) and the baseline *direction* (2 DoF) are
    refined by iteratively reweighted Gauss-Newton on the Sampson epipolar error
    (Cauchy weights), starting at the prior. The baseline *length* cannot be seen
@@ -109,6 +110,12 @@ def _lk(
     return np.asarray(pts1, dtype=np.float32), np.asarray(status, dtype=np.uint8)
 
 
+def _apply_h(h: FloatArray, pts: FloatArray) -> FloatArray:
+    """Apply a homography to ``(N, 2)`` points."""
+    p = np.hstack([pts, np.ones((len(pts), 1))]) @ h.T
+    return np.asarray(p[:, :2] / p[:, 2:], dtype=np.float64)
+
+
 def _track(
     gray_ref: npt.NDArray[np.uint8],
     gray_partner: npt.NDArray[np.uint8],
@@ -126,13 +133,26 @@ def _track(
     k = camera.matrix
     rays = np.linalg.solve(k, np.vstack([p1.T, np.ones(len(p1))]))
     guess_h = k @ (rot @ (rays * depth_prior_m) + trans[:, None])
-    guess = (guess_h[:2] / guess_h[2]).T
+    # Track against the partner turned into the reference's orientation (the infinite
+    # homography K R K^-1 of the prior rotation): Lucas-Kanade models translation only,
+    # and rotated patches would bias it; only the parallax is left to track.
+    h_inf = k @ rot @ np.linalg.inv(k)
+    derotated = np.asarray(
+        cv2.warpPerspective(
+            gray_partner, h_inf, (camera.width_px, camera.height_px), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        ),
+        dtype=np.uint8,
+    )
+    guess = _apply_h(np.linalg.inv(h_inf), (guess_h[:2] / guess_h[2]).T)
     p1f = p1.astype(np.float32).reshape(-1, 1, 2)
-    p2f, st = _lk(gray_ref, gray_partner, p1f, np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2))
-    back, st_back = _lk(gray_partner, gray_ref, p2f, p1f.copy())
+    qf, st = _lk(gray_ref, derotated, p1f, np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2))
+    p2 = _apply_h(h_inf, qf.reshape(-1, 2).astype(np.float64))
+    # The consistency check tracks back from the original partner image.
+    back, st_back = _lk(
+        gray_partner, gray_ref, np.ascontiguousarray(p2, dtype=np.float32).reshape(-1, 1, 2), p1f.copy()
+    )
     fb = np.linalg.norm(back.reshape(-1, 2) - p1, axis=1)
     ok = (st.ravel() == 1) & (st_back.ravel() == 1) & (fb < _FB_MAX_PX)
-    p2 = p2f.reshape(-1, 2).astype(np.float64)
     h, w = camera.shape
     ok &= (p2[:, 0] >= 0) & (p2[:, 0] <= w - 1) & (p2[:, 1] >= 0) & (p2[:, 1] <= h - 1)
     return p1[ok], p2[ok]
