@@ -256,7 +256,7 @@ class TcpLinkConfig:
     enabled: bool = True
     host: str = "0.0.0.0"
     port: int = 5760
-    profile: StreamProfile = StreamProfile.NORMAL
+    profile: StreamProfile = StreamProfile.ONBOARD
     signing_key_file: Path | None = None
     max_clients: int = 8
 
