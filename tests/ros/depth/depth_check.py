@@ -1,4 +1,4 @@
-# ruff: noqa: PT009  (a rostest node: unittest assertions are how rosunit reports)
+# A rostest node: unittest assertions are how rosunit reports.
 """rostest node: a synthetic camera flight in, depth images, clouds, metrics and status out.
 
 It plays the sim bridge's part: /clock, tf map -> base_link -> camera_nadir_optical,
