@@ -12,8 +12,8 @@ goal; the cruise altitude is the highest known elevation along the segment plus
 drone does not descend before cruising).
 
 *3D planner* (:func:`plan_astar`): A* over a voxel grid derived from the DEM at
-``voxel_xy_m`` x ``voxel_z_m`` resolution. A voxel is free if its centre is at least
-``clearance_m`` above the highest known surface in its column and the eight
+``voxel_xy_m`` x ``voxel_z_m`` resolution (voxels are boxes centred on ``min_altitude_m + k*voxel_z_m``).
+A voxel is free if its bottom is at least ``clearance_m`` above the highest known surface in its column and the eight
 around it (so straight moves between voxel centres keep the clearance too), between
 ``min_altitude_m`` and ``max_altitude_m``, inside the geofence and outside every
 no-fly polygon. Columns with no known elevation are free (``unknown_space:
@@ -26,6 +26,7 @@ search), then line-of-sight shortcutting of the voxel path.
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -41,11 +42,14 @@ from uav_autonomy.errors import InvalidInputError, NoPathError, PlanningError
 __all__ = [
     "ElevationMap",
     "PlannerConfig",
+    "VoxelGrid",
     "goal_altitude_m",
     "max_elevation_along_m",
+    "path_conflict_m",
     "plan",
     "plan_astar",
     "plan_straight",
+    "search_voxels",
 ]
 
 PathArray = npt.NDArray[np.float64]
@@ -56,6 +60,7 @@ class PlannerConfig:
     """Settings of the path planner (section ``planner`` of ``config/autonomy.yaml``)."""
 
     algorithm: Literal["straight", "astar"] = "straight"
+    voxel_source: Literal["octomap", "dem"] = "octomap"
     cruise_buffer_m: float = 50.0
     goal_height_m: float = 50.0
     unknown_elevation_m: float = 0.0
@@ -71,9 +76,17 @@ class PlannerConfig:
     max_expansions: int = 400_000
     domain_margin_m: float = 50.0
     replan_distance_m: float = 2.0
+    map_check_period_s: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("cruise_buffer_m", "goal_height_m", "clearance_m", "domain_margin_m", "replan_distance_m"):
+        for name in (
+            "cruise_buffer_m",
+            "goal_height_m",
+            "clearance_m",
+            "domain_margin_m",
+            "replan_distance_m",
+            "map_check_period_s",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 msg = f"{name} must be a finite number >= 0, got {value}"
@@ -194,10 +207,20 @@ def plan_straight(
 
 
 @dataclass(frozen=True)
-class _VoxelGrid:
-    """Padded voxel occupancy: ``free[z, y, x]`` with a blocked 1-voxel border."""
+class VoxelGrid:
+    """Padded planning voxels: ``free[z, y, x]`` with a blocked 1-voxel border.
+
+    Unpadded voxel ``(k, j, i)`` (padded ``(k+1, j+1, i+1)``) covers ``x`` in ``[x0 + i*res_xy, x0 + (i+1)*res_xy)``,
+    the same in ``y``, and ``z`` within half a ``res_z`` of its centre ``z0 + k*res_z``.
+
+    Attributes:
+        free: where the search may go (clear of obstacles, inside the airspace, known enough).
+        hazard: voxels too close to a known obstacle (occupied space or a known surface, with the
+            clearance); what a path planned earlier must not cross after the map grew. Same shape.
+    """
 
     free: npt.NDArray[np.bool_]
+    hazard: npt.NDArray[np.bool_]
     x0_m: float
     y0_m: float
     z0_m: float
@@ -212,10 +235,27 @@ class _VoxelGrid:
         )
 
     def index_of(self, x: float, y: float, z: float) -> tuple[int, int, int]:
+        """Padded index of the voxel holding a point, clamped into the unpadded grid."""
         nz, ny, nx = self.free.shape
         i = min(max(math.floor((x - self.x0_m) / self.res_xy_m) + 1, 1), nx - 2)
         j = min(max(math.floor((y - self.y0_m) / self.res_xy_m) + 1, 1), ny - 2)
         k = min(max(round((z - self.z0_m) / self.res_z_m) + 1, 1), nz - 2)
+        return k, j, i
+
+    def sample_indices(
+        self, a: tuple[float, float, float], b: tuple[float, float, float]
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Padded voxels ``(k, j, i)`` holding points every half voxel along ``a -> b``.
+
+        Indices may fall outside the array (the caller decides what outside means).
+        """
+        length = math.dist(a, b)
+        n = max(2, math.ceil(length / (0.5 * min(self.res_xy_m, self.res_z_m))) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        pts = np.asarray(a) + t * (np.asarray(b) - np.asarray(a))
+        i = np.floor((pts[:, 0] - self.x0_m) / self.res_xy_m).astype(np.int64) + 1
+        j = np.floor((pts[:, 1] - self.y0_m) / self.res_xy_m).astype(np.int64) + 1
+        k = np.floor((pts[:, 2] - self.z0_m) / self.res_z_m + 0.5).astype(np.int64) + 1
         return k, j, i
 
 
@@ -251,7 +291,7 @@ def _dilate3(grid: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
 
 def _build_voxels(
     dem: ElevationMap, start: tuple[float, float, float], goal: tuple[float, float, float], config: PlannerConfig
-) -> _VoxelGrid:
+) -> VoxelGrid:
     x_min, x_max, y_min, y_max = dem.spec.extent_m()
     xs = [x_min, x_max, start[0], goal[0]]
     ys = [y_min, y_max, start[1], goal[1]]
@@ -272,8 +312,12 @@ def _build_voxels(
     unknown_raw = np.isnan(raw)
     surface = _dilate3(np.where(unknown_raw, np.float32(config.unknown_elevation_m), raw).astype(np.float32))
     unknown = _dilate3(unknown_raw.astype(np.float32)) > 0.5
-    zs = config.min_altitude_m + np.arange(nz) * config.voxel_z_m
-    free = zs[:, None, None] >= surface[None, :, :] + config.clearance_m
+    # Each voxel is a box around its centre: free if its bottom keeps the clearance.
+    bottoms = config.min_altitude_m + (np.arange(nz) - 0.5) * config.voxel_z_m
+    free = bottoms[:, None, None] >= surface[None, :, :] + config.clearance_m
+    # Hazard: too close to a *known* surface (unknown columns are not obstacles for path checks).
+    known_surface = _dilate3(np.where(unknown_raw, np.float32(-np.inf), raw).astype(np.float32))
+    hazard = bottoms[:, None, None] < known_surface[None, :, :] + config.clearance_m
     column_ok = np.ones((ny, nx), dtype=bool)
     if config.unknown_space == "occupied":
         column_ok &= ~unknown
@@ -286,12 +330,16 @@ def _build_voxels(
         column_ok &= ~points_in_polygon(centers, as_polygon(zone, f"no_fly_zones_xy_m[{i}]"))
     column_ok = ~(_dilate3((~column_ok).astype(np.float32)) > 0.5)  # no corner-cutting into zones
     free &= column_ok[None, :, :]
-    padded = np.zeros((nz + 2, ny + 2, nx + 2), dtype=bool)
-    padded[1:-1, 1:-1, 1:-1] = free
-    return _VoxelGrid(padded, x0, y0, config.min_altitude_m, res, config.voxel_z_m)
+    return VoxelGrid(_pad(free, False), _pad(hazard, False), x0, y0, config.min_altitude_m, res, config.voxel_z_m)
 
 
-def _nearest_free(grid: _VoxelGrid, k: int, j: int, i: int, name: str) -> tuple[int, int, int]:
+def _pad(grid: npt.NDArray[np.bool_], value: bool) -> npt.NDArray[np.bool_]:
+    padded = np.full((grid.shape[0] + 2, grid.shape[1] + 2, grid.shape[2] + 2), value, dtype=bool)
+    padded[1:-1, 1:-1, 1:-1] = grid
+    return padded
+
+
+def _nearest_free(grid: VoxelGrid, k: int, j: int, i: int, name: str) -> tuple[int, int, int]:
     """The free voxel nearest ``(k, j, i)`` in its column, preferring above; else nearby columns."""
     nz = grid.free.shape[0]
     for radius in range(4):
@@ -317,19 +365,36 @@ def _nearest_free(grid: _VoxelGrid, k: int, j: int, i: int, name: str) -> tuple[
     raise NoPathError(msg)
 
 
-def _line_free(grid: _VoxelGrid, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
-    length = math.dist(a, b)
-    n = max(2, math.ceil(length / (0.5 * min(grid.res_xy_m, grid.res_z_m))) + 1)
-    t = np.linspace(0.0, 1.0, n)[:, None]
-    pts = np.asarray(a) + t * (np.asarray(b) - np.asarray(a))
-    i = np.floor((pts[:, 0] - grid.x0_m) / grid.res_xy_m).astype(np.int64) + 1
-    j = np.floor((pts[:, 1] - grid.y0_m) / grid.res_xy_m).astype(np.int64) + 1
-    # A point between two z layers must clear both: check the layer below (floor).
-    k = np.floor((pts[:, 2] - grid.z0_m) / grid.res_z_m + 1e-9).astype(np.int64) + 1
+def _line_free(grid: VoxelGrid, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    k, j, i = grid.sample_indices(a, b)
     nz, ny, nx = grid.free.shape
     if (i < 0).any() or (i >= nx).any() or (j < 0).any() or (j >= ny).any() or (k < 0).any() or (k >= nz).any():
         return False
     return bool(grid.free[k, j, i].all())
+
+
+def path_conflict_m(path: npt.NDArray[np.float64], grid: VoxelGrid, skip_m: float = 0.0) -> float | None:
+    """Arc length along ``path`` of its first point in a hazard voxel, ignoring the first ``skip_m``.
+
+    Points outside the grid are not hazards (nothing is known there). Returns None when the path
+    keeps clear of every known obstacle: it may still be flown after the map changed.
+    """
+    travelled = 0.0
+    nz, ny, nx = grid.hazard.shape
+    for a, b in itertools.pairwise(path):
+        pa = (float(a[0]), float(a[1]), float(a[2]))
+        pb = (float(b[0]), float(b[1]), float(b[2]))
+        length = math.dist(pa, pb)
+        k, j, i = grid.sample_indices(pa, pb)
+        s = travelled + np.linspace(0.0, length, len(i))
+        inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & (k >= 0) & (k < nz)
+        hit = np.zeros(len(i), dtype=bool)
+        hit[inside] = grid.hazard[k[inside], j[inside], i[inside]]
+        hit &= s >= skip_m
+        if hit.any():
+            return float(s[np.argmax(hit)])
+        travelled += length
+    return None
 
 
 def _neighbours(shape: tuple[int, ...], res_xy: float, res_z: float) -> list[tuple[int, float]]:
@@ -350,7 +415,7 @@ def _neighbours(shape: tuple[int, ...], res_xy: float, res_z: float) -> list[tup
 
 
 def _astar(
-    grid: _VoxelGrid, start: tuple[int, int, int], goal: tuple[int, int, int], config: PlannerConfig
+    grid: VoxelGrid, start: tuple[int, int, int], goal: tuple[int, int, int], config: PlannerConfig
 ) -> list[int]:
     shape = grid.free.shape
     _, ny, nx = shape
@@ -406,7 +471,7 @@ def _astar(
 def plan_astar(
     start_enu: tuple[float, float, float], goal_xy: tuple[float, float], dem: ElevationMap, config: PlannerConfig
 ) -> PathArray:
-    """3D A* path from ``start_enu`` to ``goal_height_m`` above ``goal_xy``.
+    """3D A* path from ``start_enu`` to ``goal_height_m`` above ``goal_xy`` over voxels derived from the DEM.
 
     Returns:
         ``(N, 3)`` float64 ENU waypoints: the start, the shortcut voxel path, the goal.
@@ -420,9 +485,19 @@ def plan_astar(
     _check_point("goal", goal_xy)
     goal_z = min(max(goal_altitude_m(dem, goal_xy, config), config.min_altitude_m), config.max_altitude_m)
     goal = (goal_xy[0], goal_xy[1], goal_z)
-    grid = _build_voxels(dem, start_enu, goal, config)
+    return search_voxels(_build_voxels(dem, start_enu, goal, config), start_enu, goal, config)
+
+
+def search_voxels(
+    grid: VoxelGrid, start_enu: tuple[float, float, float], goal_enu: tuple[float, float, float], config: PlannerConfig
+) -> PathArray:
+    """A* from the free voxel nearest the start to the one nearest the goal, then line-of-sight shortcuts.
+
+    Raises:
+        NoPathError: start or goal have no free voxel nearby, or the goal is unreachable.
+    """
     s_vox = _nearest_free(grid, *grid.index_of(*start_enu), "start")
-    g_vox = _nearest_free(grid, *grid.index_of(*goal), "goal")
+    g_vox = _nearest_free(grid, *grid.index_of(*goal_enu), "goal")
     _, ny, nx = grid.free.shape
     plane = ny * nx
     voxel_path = []
@@ -432,7 +507,7 @@ def plan_astar(
         voxel_path.append(grid.center(k, j, i))
     g_center = voxel_path[-1]
     # The exact goal replaces its voxel centre when the last leg stays in free space.
-    end = goal if _line_free(grid, g_center, goal) else g_center
+    end = goal_enu if _line_free(grid, g_center, goal_enu) else g_center
     points: list[tuple[float, float, float]] = [start_enu, *voxel_path, end]
     # Shortcut: from each kept point, jump to the farthest later point in line of sight.
     out = [points[0], points[1]] if len(points) > 1 else [points[0]]
