@@ -41,6 +41,7 @@ __all__ = [
     "WorldSpec",
     "load_scenario",
     "recorded_topics",
+    "replay_inputs",
 ]
 
 Point2 = tuple[float, float]
@@ -96,7 +97,9 @@ class WorldSpec:
     """The world: a world-generator config and its seed (same seed, same world)."""
 
     config: Path = Path("../worlds/default.yaml")
-    seed: int = 1
+    #: World seed; ``None`` keeps the world file's own seed. A different seed gives a
+    #: different world (the launchers write a derived world file with this seed).
+    seed: int | None = None
     #: Size of the square scene used as the "% mapped" denominator when the world's
     #: own bounds are unknown; the world's ground truth wins when it is available.
     size_m: float = 1000.0
@@ -111,6 +114,8 @@ class WorldSpec:
 class MapSpec:
     backend: MapBackend = MapBackend.OCTOMAP
     resolution_m: float = 0.5
+    #: The camera whose depth (ground truth or estimated) feeds the map.
+    camera: str = "nadir"
     #: Extra private parameters for the map server, passed through untouched.
     params: dict[str, Any] = field(default_factory=dict)
 
@@ -170,6 +175,8 @@ class AutonomySpec:
 class PersonSpec:
     """The person of interest (search and rescue): placed at random, seeded, inside a region."""
 
+    #: Which person of the world's object list is the person of interest (moved into place).
+    name: str = "person_0000"
     placement_seed: int = 1
     #: Where the person may be; a polygon in map metres.
     region_m: tuple[Point2, ...] = ((-100.0, -400.0), (100.0, -400.0), (100.0, -250.0), (-100.0, -250.0))
@@ -257,19 +264,24 @@ class TimeSpec:
             raise ValueError(msg)
 
 
-#: Topic sets for ``rosbag record``. ``report`` is enough for ``uav-report``;
-#: ``replay`` adds what re-drives the map server without the simulator.
+#: Topic sets for ``rosbag record``. ``report`` is what ``uav-report`` needs (small);
+#: ``replay`` adds what re-drives the map server, the evaluators and the scorer without
+#: the simulator (tf and the map camera's depth input, see :func:`recorded_topics`: big).
 RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
     "report": (
-        "/clock",
         "/uav/ground_truth/odom",
         "/uav/sim_state",
         "/uav/battery",
         "/uav/controller/state",
         "/autonomy/goal",
         "/autonomy/goal_reason",
+        "/autonomy/path",
+        "/autonomy/target",
+        "/autonomy/weights",
+        "/autonomy/target_point",
         "/detections/ground_truth",
         "/sim/collision",
+        "/map_server/insert_stats",
         "/scenario/config",
         "/scenario/status",
         "/scenario/metrics",
@@ -282,15 +294,10 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         "/scenario/snapshot/forward/color",
         "/scenario/snapshot/forward/depth",
         "/scenario/snapshot/forward/instance",
-        "/depth_estimator/metrics",
+        "/depth_evaluator/metrics",
+        "/depth_estimator/status",
     ),
-    "replay": (
-        "/tf",
-        "/tf_static",
-        "/cameras/nadir/points",
-        "/cameras/nadir/depth/camera_info",
-        "/cameras/forward/depth/camera_info",
-    ),
+    "replay": ("/tf", "/tf_static"),
 }
 
 
@@ -320,6 +327,10 @@ class ScoringSpec:
     snapshot_times_s: tuple[float, ...] = (15.0, 45.0, 125.0, 230.0)
     #: Tracker association gate and MOT evaluation gate, metres on the ground.
     track_gate_m: float = 5.0
+    #: Simulation seconds between map-accuracy evaluations (export of the map's occupied voxels).
+    map_accuracy_period_s: float = 10.0
+    #: Snapshot grids (elevation, score) are reduced to at most this many cells per side for the report.
+    snapshot_max_cells: int = 800
     #: Altitude bands (m above ground) for the context breakdown; edges, ascending.
     altitude_bands_m: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0, 1000.0)
     range_bands_m: tuple[float, ...] = (0.0, 25.0, 50.0, 75.0, 100.0, 1000.0)
@@ -327,8 +338,8 @@ class ScoringSpec:
     clutter_bands: tuple[float, ...] = (0.0, 1.0, 3.0, 1000.0)
 
     def __post_init__(self) -> None:
-        if self.metrics_rate_hz <= 0:
-            msg = f"metrics_rate_hz must be > 0, got {self.metrics_rate_hz}"
+        if self.metrics_rate_hz <= 0 or self.map_accuracy_period_s <= 0 or self.snapshot_max_cells < 16:
+            msg = "metrics_rate_hz and map_accuracy_period_s must be > 0, snapshot_max_cells >= 16"
             raise ValueError(msg)
         for name in ("altitude_bands_m", "range_bands_m", "view_angle_bands_deg", "clutter_bands"):
             edges = getattr(self, name)
@@ -382,11 +393,27 @@ class Scenario:
         return (self.source.parent / self.world.config).resolve()
 
 
-def recorded_topics(spec: RecordingSpec) -> tuple[str, ...]:
+def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
+    """What the map server (and, with estimated depth, the depth nodes) need in a replay.
+
+    Ground-truth depth: the map camera's cloud. Estimated depth: the camera's color and
+    depth images and their camera infos, so the estimator and the evaluator run again.
+    """
+    cam = f"/cameras/{scenario.map.camera}"
+    if scenario.depth_source is DepthSource.GROUND_TRUTH:
+        return (f"{cam}/points",)
+    return (f"{cam}/color/image_raw", f"{cam}/color/camera_info", f"{cam}/depth/image_raw", f"{cam}/depth/camera_info")
+
+
+def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     """The topic list for ``rosbag record`` (presets are cumulative: replay includes report)."""
+    spec = scenario.recording
     topics = list(RECORDING_PRESETS["report"])
+    if scenario.search is not None and scenario.search.detection_topic not in topics:
+        topics.append(scenario.search.detection_topic)
     if spec.preset == "replay":
         topics += RECORDING_PRESETS["replay"]
+        topics += replay_inputs(scenario)
     topics += [t for t in spec.extra_topics if t not in topics]
     return tuple(topics)
 

@@ -1,4 +1,4 @@
-"""Mission logic of a scenario run: phases, stop criteria, person confirmation, placement.
+"""Mission logic of a scenario run: phases, stop criteria, person confirmation.
 
 Pure: the mission manager node feeds times (simulation seconds since the run
 started) and observations, and acts on what these functions return.
@@ -14,8 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from uav_autonomy.core.scenario_config import MissionKind, PersonSpec, Scenario, StopCriteria, Strategy
-from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_config import MissionKind, Scenario, StopCriteria, Strategy
 from uav_autonomy.core.scoring_types import Detection
 
 __all__ = [
@@ -25,7 +24,6 @@ __all__ = [
     "StopReason",
     "check_stop",
     "flying_phase",
-    "place_person",
     "point_in_polygon",
 ]
 
@@ -128,12 +126,17 @@ class ConfirmationGate:
     no position (NaN) cannot confirm a location and is ignored. The first cluster to
     reach ``needed`` detections inside the window is the confirmation; later calls
     return the same one.
+
+    ``instance_id`` is the person of interest: detections that name another instance
+    (ground truth knows who everyone is) are someone else and never confirm; a
+    detector that cannot tell people apart (instance id 0) is taken at its word.
     """
 
     needed: int
     window_s: float
     gate_m: float = 10.0
     class_name: str = "person"
+    instance_id: int = 0
     _clusters: list[_Cluster] = field(default_factory=list)
     confirmed: Confirmation | None = None
 
@@ -142,6 +145,8 @@ class ConfirmationGate:
             return self.confirmed
         for det in detections:
             if det.class_name != self.class_name or not all(math.isfinite(v) for v in det.position_m):
+                continue
+            if self.instance_id and det.instance_id not in (0, self.instance_id):
                 continue
             pos = np.asarray(det.position_m, dtype=np.float64)
             near = [c for c in self._clusters if float(np.linalg.norm(c.position[:2] - pos[:2])) <= self.gate_m]
@@ -173,25 +178,3 @@ def point_in_polygon(x: float, y: float, polygon: tuple[tuple[float, float], ...
         if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
             inside = not inside
     return inside
-
-
-def place_person(spec: PersonSpec, *, home_clearance_m: float = 15.0) -> tuple[float, float]:
-    """The person's ground position: ``position_m`` if fixed, else seeded uniform in ``region_m``.
-
-    The same seed always gives the same position; home's clear pad is avoided.
-
-    Raises:
-        ScenarioError: the region leaves no room outside the home pad.
-    """
-    if spec.position_m is not None:
-        return spec.position_m
-    rng = np.random.default_rng(spec.placement_seed)
-    xs = [p[0] for p in spec.region_m]
-    ys = [p[1] for p in spec.region_m]
-    for _ in range(10_000):
-        x = float(rng.uniform(min(xs), max(xs)))
-        y = float(rng.uniform(min(ys), max(ys)))
-        if point_in_polygon(x, y, spec.region_m) and math.hypot(x, y) > home_clearance_m + spec.clearance_m:
-            return (x, y)
-    msg = f"person region {spec.region_m} has no room outside home's {home_clearance_m} m pad; move the region"
-    raise ScenarioError(msg)

@@ -58,7 +58,8 @@ def pose_from_odometry(msg: Any) -> PoseSample:
     """``nav_msgs/Odometry`` -> pose (yaw from the orientation quaternion, ENU)."""
     q = msg.pose.pose.orientation
     yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    return PoseSample(stamp_s(msg.header.stamp), _xyz(msg.pose.pose.position), yaw)
+    quat = (float(q.x), float(q.y), float(q.z), float(q.w))
+    return PoseSample(stamp_s(msg.header.stamp), _xyz(msg.pose.pose.position), yaw, quat)
 
 
 def battery_from_msg(msg: Any) -> BatterySample:
@@ -167,22 +168,43 @@ def controller_from_msg(msg: Any, t_s: float | None = None) -> ControllerSample:
     )
 
 
-def depth_metrics_from_msg(msg: Any) -> DepthMetricsSample:
-    """A per-frame depth accuracy message -> name/value sample.
+_DEPTH_STATS = (
+    "coverage",
+    "within_abs",
+    "within_rel",
+    "delta1",
+    "delta2",
+    "delta3",
+    "abs_rel",
+    "rmse_m",
+    "mae_m",
+    "bias_m",
+    "median_abs_err_m",
+)
 
-    Accepts any message with a header and either parallel ``names``/``values`` arrays
-    or plain float fields (every numeric field except the header is taken).
+
+def _depth_stats(stats: Any) -> dict[str, float]:
+    out = {name: float(getattr(stats, name)) for name in _DEPTH_STATS if hasattr(stats, name)}
+    for name in ("n_evaluated", "n_covered"):
+        if hasattr(stats, name):
+            out[name] = float(getattr(stats, name))
+    return out
+
+
+def depth_metrics_from_msg(msg: Any) -> DepthMetricsSample:
+    """``uav_msgs/DepthMetrics`` (the depth evaluator's per-frame accuracy) -> depth sample.
+
+    ``overall`` gives the frame's values; ``range_bands`` and ``classes`` its breakdowns
+    (bands or classes with no evaluated pixel are left out).
     """
     t = stamp_s(msg.header.stamp)
-    if hasattr(msg, "names") and hasattr(msg, "values"):
-        return DepthMetricsSample(t, {str(n): float(v) for n, v in zip(msg.names, msg.values, strict=False)})
-    fields = getattr(msg, "__slots__", None) or [f for f in vars(msg) if not f.startswith("_")]
-    values: dict[str, float] = {}
-    for name in fields:
-        value = getattr(msg, name, None)
-        if isinstance(value, int | float) and not isinstance(value, bool) and name != "header":
-            values[str(name)] = float(value)
-    return DepthMetricsSample(t, values)
+    values = _depth_stats(msg.overall)
+    breakdown: dict[str, dict[str, dict[str, float]]] = {}
+    for context, items in (("range", msg.range_bands), ("class", msg.classes)):
+        per = {str(s.label): _depth_stats(s) for s in items if int(getattr(s, "n_evaluated", 1)) > 0}
+        if per:
+            breakdown[context] = per
+    return DepthMetricsSample(t, values, breakdown, str(getattr(msg, "camera", "")))
 
 
 def image_from_msg(msg: Any) -> np.ndarray[Any, Any]:

@@ -76,6 +76,16 @@ class DetectionCounts:
         return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall}
 
 
+@dataclass(frozen=True)
+class _DepthFrame:
+    sample: DepthMetricsSample
+    ctx: dict[str, str]
+
+    @property
+    def values(self) -> dict[str, float]:
+        return self.sample.values
+
+
 @dataclass
 class _FirstDetection:
     t_s: float
@@ -95,6 +105,8 @@ class RunScorer:
         tracked_camera: camera whose detections the tracker follows.
         swath_m_per_m: nadir swath width per metre of altitude (``2 tan(fov/2)``), for the
             coverage efficiency; 0 if unknown.
+        camera_pitch_deg: each camera's mount pitch (90 = nadir), for the view-angle context
+            of per-frame depth statistics.
     """
 
     spec: ScoringSpec
@@ -105,6 +117,7 @@ class RunScorer:
     cruise_speed_mps: float = math.nan
     swath_m_per_m: float = 0.0
     start_t_s: float = math.nan
+    camera_pitch_deg: dict[str, float] = field(default_factory=lambda: {"nadir": 90.0, "forward": 25.0})
     _poses: list[PoseSample] = field(default_factory=list)
     _agl: list[float] = field(default_factory=list)
     _distance_m: float = 0.0
@@ -116,7 +129,7 @@ class RunScorer:
     _collisions: list[CollisionEvent] = field(default_factory=list)
     _goals: list[GoalSample] = field(default_factory=list)
     _controller: list[ControllerSample] = field(default_factory=list)
-    _depth: list[DepthMetricsSample] = field(default_factory=list)
+    _depth: list[_DepthFrame] = field(default_factory=list)
     _pending_truth: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
     _pending_hyp: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
     _pending_tracks: dict[tuple[str, float], TrackFrame] = field(default_factory=dict)
@@ -131,6 +144,7 @@ class RunScorer:
     _mot: MotScorer | None = None
     _mot_by_context: dict[str, dict[int, MotScorer]] = field(default_factory=dict)
     _events: list[tuple[float, str]] = field(default_factory=list)
+    _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
     _complete_t_s: float = math.nan
     _complete_what: str = ""
     _last_t_s: float = -math.inf
@@ -166,12 +180,17 @@ class RunScorer:
 
     def add_map_keys(self, t_s: float, keys: np.ndarray[Any, np.dtype[np.int64]]) -> VoxelAccuracy | None:
         """Occupied voxel keys of the map at ``t_s`` (same resolution as the truth)."""
-        self._advance(t_s)
         if self.truth.surface_keys.size == 0:
+            self._advance(t_s)
             return None
-        self._map_accuracy = voxel_accuracy(keys, self.truth.surface_keys)
-        self._map_accuracy_t_s = t_s
+        self.set_map_accuracy(t_s, voxel_accuracy(keys, self.truth.surface_keys))
         return self._map_accuracy
+
+    def set_map_accuracy(self, t_s: float, accuracy: VoxelAccuracy) -> None:
+        """A map accuracy computed elsewhere (:func:`voxel_accuracy` is slow on big maps: off the lock)."""
+        self._advance(t_s)
+        self._map_accuracy = accuracy
+        self._map_accuracy_t_s = t_s
 
     def add_collision(self, event: CollisionEvent) -> None:
         self._advance(event.t_s)
@@ -190,7 +209,7 @@ class RunScorer:
 
     def add_depth_metrics(self, sample: DepthMetricsSample) -> None:
         self._advance(sample.t_s)
-        self._depth.append(sample)
+        self._depth.append(_DepthFrame(sample, self._depth_context(sample)))
 
     def add_event(self, t_s: float, text: str) -> None:
         self._advance(t_s)
@@ -217,6 +236,7 @@ class RunScorer:
         if is_truth:
             self._note_person_seen(frame)
             self._pending_truth[key] = frame
+            self._clutter[key] = len(frame.detections)
         if both or not is_truth:
             self._pending_hyp[key] = frame
         self._score_pending(key)
@@ -270,7 +290,7 @@ class RunScorer:
 
     def _prune(self, now_s: float) -> None:
         horizon = now_s - 10.0
-        for pending in (self._pending_truth, self._pending_hyp, self._pending_tracks):
+        for pending in (self._pending_truth, self._pending_hyp, self._pending_tracks, self._clutter):
             for k in [k for k in pending if k[1] < horizon]:
                 del pending[k]
 
@@ -292,6 +312,18 @@ class RunScorer:
             "range": band_of(det.range_m, spec.range_bands_m),
             "view_angle": band_of(angle, spec.view_angle_bands_deg),
         }
+
+    def _track_frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+        """A tracking frame's context: clutter and altitude, plus the median range and view angle of its objects."""
+        ctx = self._frame_context(truth)
+        pose, _ = self._pose_at(truth.t_s)
+        ranges = [d.range_m for d in truth.detections if math.isfinite(d.range_m)]
+        angles = [view_angle_deg(pose.position_m, d.position_m) for d in truth.detections] if pose is not None else []
+        angles = [a for a in angles if math.isfinite(a)]
+        spec = self.spec
+        ctx["range"] = band_of(float(np.median(ranges)) if ranges else math.nan, spec.range_bands_m)
+        ctx["view_angle"] = band_of(float(np.median(angles)) if angles else math.nan, spec.view_angle_bands_deg)
+        return ctx
 
     def _count(self, ctx: dict[str, int], kind: str) -> None:
         for name, band in ctx.items():
@@ -327,7 +359,7 @@ class RunScorer:
         h_ids = [t.track_id for t in tracks.tracks]
         h_xy = np.array([t.position_m[:2] for t in tracks.tracks]).reshape(-1, 2)
         self._mot.update(t_ids, t_xy, h_ids, h_xy)
-        for name, band in self._frame_context(truth).items():
+        for name, band in self._track_frame_context(truth).items():
             per = self._mot_by_context.setdefault(name, {})
             if band not in per:
                 per[band] = MotScorer(self.spec.track_gate_m)
@@ -414,6 +446,7 @@ class RunScorer:
                 "precision": acc.precision if acc else math.nan,
                 "recall": acc.recall if acc else math.nan,
                 "recall_observed": acc.recall_observed if acc else math.nan,
+                "iou_observed": acc.iou_observed if acc else math.nan,
                 "occupied_voxels": acc.n_map if acc else math.nan,
                 "truth_voxels": acc.n_truth if acc else int(self.truth.surface_keys.size),
             },
@@ -485,28 +518,40 @@ class RunScorer:
             by_context[name] = {band_label(k, edges, unit): per[k].result().as_dict() for k in sorted(per)}
         return {**self._mot.result().as_dict(), "by_context": by_context}
 
+    def _depth_context(self, sample: DepthMetricsSample) -> dict[str, str]:
+        """Altitude, view angle (of the camera's axis) and clutter (objects in that camera's frame) of a depth frame."""
+        pose, agl = self._pose_at(sample.t_s)
+        pitch = self.camera_pitch_deg.get(sample.camera, 90.0)
+        angle = pose.camera_off_nadir_deg(pitch) if pose is not None else math.nan
+        key = (sample.camera, round(sample.t_s, _FRAME_KEY_DIGITS))
+        clutter = float(self._clutter[key]) if key in self._clutter else math.nan
+        out = {}
+        for name, value in (("altitude", agl), ("view_angle", angle), ("clutter", clutter)):
+            edges, unit = self._bands(name)
+            out[name] = band_label(band_of(value, edges), edges, unit)
+        return out
+
     def _depth_summary(self) -> dict[str, Any]:
         if not self._depth:
             return {"frames": 0}
         keys = sorted({k for s in self._depth for k in s.values})
+
+        def mean_of(samples: list[dict[str, float]]) -> dict[str, float]:
+            names = sorted({k for v in samples for k in v})
+            return {"frames": len(samples), **{k: _nanmean([v.get(k, math.nan) for v in samples]) for k in names}}
+
         overall = {k: _nanmean([s.values.get(k, math.nan) for s in self._depth]) for k in keys}
-        by_alt: dict[int, list[DepthMetricsSample]] = defaultdict(list)
+        grouped: dict[str, dict[str, list[dict[str, float]]]] = defaultdict(lambda: defaultdict(list))
         for s in self._depth:
-            _, agl = self._pose_at(s.t_s)
-            by_alt[band_of(agl, self.spec.altitude_bands_m)].append(s)
-        edges, unit = self._bands("altitude")
+            for context, label in s.ctx.items():
+                grouped[context][label].append(s.values)
+            for context, per in s.sample.breakdown.items():
+                for label, values in per.items():
+                    grouped[context][label].append(values)
         return {
             "frames": len(self._depth),
             **overall,
-            "by_context": {
-                "altitude": {
-                    band_label(k, edges, unit): {
-                        "frames": len(v),
-                        **{key: _nanmean([s.values.get(key, math.nan) for s in v]) for key in keys},
-                    }
-                    for k, v in sorted(by_alt.items())
-                }
-            },
+            "by_context": {c: {label: mean_of(v) for label, v in sorted(per.items())} for c, per in grouped.items()},
         }
 
     @property

@@ -36,11 +36,28 @@ NAN3: Vec3 = (math.nan, math.nan, math.nan)
 
 @dataclass(frozen=True)
 class PoseSample:
-    """Ground-truth vehicle pose."""
+    """Ground-truth vehicle pose (``quat_xyzw``: base_link -> map, ROS order)."""
 
     t_s: float
     position_m: Vec3
     yaw_rad: float = 0.0
+    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    def camera_off_nadir_deg(self, mount_pitch_deg: float) -> float:
+        """Off-nadir angle of a camera's optical axis: 0° looking straight down, 90° at the horizon.
+
+        The camera looks along base_link x pitched down by ``mount_pitch_deg`` (REP 103 FLU mount,
+        as the bridge's ``mount.rpy_deg[1]``: 90 = nadir).
+        """
+        x, y, z, w = self.quat_xyzw
+        p = math.radians(mount_pitch_deg)
+        axis = (math.cos(p), 0.0, -math.sin(p))
+        # z component of R(q) @ axis
+        r20 = 2.0 * (x * z - w * y)
+        r21 = 2.0 * (y * z + w * x)
+        r22 = 1.0 - 2.0 * (x * x + y * y)
+        down = -(r20 * axis[0] + r21 * axis[1] + r22 * axis[2])
+        return math.degrees(math.acos(max(-1.0, min(1.0, down))))
 
 
 @dataclass(frozen=True)
@@ -136,10 +153,19 @@ class ControllerSample:
 
 @dataclass(frozen=True)
 class DepthMetricsSample:
-    """One frame's depth accuracy from the depth evaluator (issue 8): name -> value."""
+    """One frame's depth accuracy from the depth evaluator (issue 8).
+
+    Attributes:
+        values: the whole frame's statistics, name -> value (``coverage``, ``within_abs``, ``abs_rel``...).
+        breakdown: the evaluator's own breakdowns, context -> label -> statistics
+            (``{"range": {"20-40m": {...}}, "class": {"building": {...}}}``).
+        camera: the evaluated camera.
+    """
 
     t_s: float
     values: dict[str, float]
+    breakdown: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    camera: str = ""
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,13 @@ Calls:
     scenario) once the controller's link is up, HOLD staring at the person once confirmed.
 Parameters:
     ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
-    ``~shutdown_on_stop`` (bool, default true): exit ``~linger_s`` wall seconds after a stop criterion is
-    met (launch it ``required="true"`` so roslaunch ends the run); ``~linger_s`` (float, 2.0).
+    ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
+    ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
+    ``~run/person`` (dict, from ``scenario_params``): the person of interest ``{name, instance_id, x_m, y_m}``;
+    ``~shutdown_on_stop`` (bool, default true): exit once the scorer has published its final metrics
+    (``"final": true`` in ``summary_json``), at least ``~linger_s`` (float, 1.0) and at most
+    ``~max_linger_s`` (float, 30.0) wall seconds after a stop criterion is met (launch it
+    ``required="true"`` so roslaunch ends the run).
 
 Decisions are :mod:`uav_autonomy.core.scenario_mission`.
 """
@@ -57,14 +62,25 @@ FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
 
 
 class MissionManager:
-    def __init__(self, scenario: Scenario, controller_ns: str, *, shutdown_on_stop: bool, linger_s: float) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        controller_ns: str,
+        *,
+        shutdown_on_stop: bool,
+        linger_s: float,
+        max_linger_s: float = 30.0,
+        person_instance_id: int = 0,
+    ) -> None:
         self.scenario = scenario
         self.controller_ns = controller_ns.rstrip("/")
         self.shutdown_on_stop = shutdown_on_stop
         self.linger_s = linger_s
+        self.max_linger_s = max_linger_s
+        self.scorer_final = False
         search = scenario.search
         self.gate = (
-            ConfirmationGate(search.confirm_detections, search.confirm_window_s)
+            ConfirmationGate(search.confirm_detections, search.confirm_window_s, instance_id=person_instance_id)
             if scenario.mission is MissionKind.SEARCH_AND_RESCUE and search is not None
             else None
         )
@@ -113,6 +129,8 @@ class MissionManager:
     def on_metrics(self, msg: RunMetrics) -> None:
         self.mapped_pct = msg.mapped_pct
         self.collisions = max(self.collisions, msg.collisions)
+        if self.stop_reason is not None and '"final": true' in msg.summary_json:
+            self.scorer_final = True
 
     def on_sim_state(self, msg: SimState) -> None:
         self.crashed = self.crashed or msg.crashed
@@ -206,12 +224,12 @@ class MissionManager:
                 )
                 self.stop_wall_s = time.monotonic()
         self._publish(now)
-        if (
-            self.stop_wall_s is not None
-            and self.shutdown_on_stop
-            and time.monotonic() - self.stop_wall_s >= self.linger_s
-        ):
-            rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
+        if self.stop_wall_s is not None and self.shutdown_on_stop:
+            waited = time.monotonic() - self.stop_wall_s
+            if (self.scorer_final and waited >= self.linger_s) or waited >= self.max_linger_s:
+                if not self.scorer_final:
+                    rospy.logwarn(f"mission_manager: no final metrics from the scorer after {waited:.0f} s; ending")
+                rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
 
     def _rtf(self) -> float:
         if len(self.rtf_window) < 2:
@@ -244,6 +262,21 @@ class MissionManager:
         self.status_pub.publish(status_msg(rospy.Time.from_sec(now), fields))
 
 
+def launch_mismatch(scenario: Scenario, expect_mission: str, depth_source: str) -> str:
+    """Why the launch file and the scenario disagree ("" when they agree)."""
+    if expect_mission and expect_mission != scenario.mission.value:
+        return (
+            f"{scenario.source} is a {scenario.mission.value} scenario but this is {expect_mission}.launch; "
+            f"use {scenario.mission.value}.launch (or uav-run, which picks it)"
+        )
+    if depth_source and depth_source != scenario.depth_source.value:
+        return (
+            f"{scenario.source} says depth_source: {scenario.depth_source.value} but the launch started "
+            f"depth_source:={depth_source}; pass depth_source:={scenario.depth_source.value} (uav-run does)"
+        )
+    return ""
+
+
 def main() -> None:
     rospy.init_node("mission_manager")
     try:
@@ -254,11 +287,20 @@ def main() -> None:
     except (ConfigError, ScenarioError) as err:
         rospy.logfatal(f"mission_manager: {err}")
         sys.exit(2)
+    problem = launch_mismatch(
+        scenario, str(rospy.get_param("~expect_mission", "")), str(rospy.get_param("~depth_source", ""))
+    )
+    if problem:
+        rospy.logfatal(f"mission_manager: {problem}")
+        sys.exit(2)
+    person = rospy.get_param("~run/person", {}) or {}
     node = MissionManager(
         scenario,
         str(rospy.get_param("~controller", "/waypoint_controller")),
         shutdown_on_stop=bool(rospy.get_param("~shutdown_on_stop", True)),
-        linger_s=float(rospy.get_param("~linger_s", 2.0)),
+        linger_s=float(rospy.get_param("~linger_s", 1.0)),
+        max_linger_s=float(rospy.get_param("~max_linger_s", 30.0)),
+        person_instance_id=int(person.get("instance_id", 0)),
     )
     node.start()
     rospy.spin()

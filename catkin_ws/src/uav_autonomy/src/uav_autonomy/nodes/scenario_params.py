@@ -1,38 +1,93 @@
-"""scenario_params SCENARIO NODE: print NODE's settings for a scenario as YAML.
+"""scenario_params SCENARIO NODE [options]: print NODE's settings for a scenario as YAML.
 
-Used by the scenario launch files as ``<param name="overrides" type="yaml"
-command="$(find uav_autonomy)/nodes/scenario_params $(arg scenario) goal_selector"/>``
+Used by the scenario launch files as ``<param name="/NODE/overrides" type="yaml"
+command="$(find uav_autonomy)/nodes/scenario_params $(arg scenario) NODE --run-dir ..."/>``
 so every node of a run takes its settings from the one scenario file. ``NODE`` may also be
 ``scenario`` (the whole parsed scenario) or ``scripted`` (the controller's SCRIPTED request).
-A broken scenario file makes it exit non-zero with the file and key, which stops roslaunch.
+
+Options: ``--run-dir DIR`` (the run folder), ``--world-cache-dir DIR`` (the bridge's world
+cache), ``--lockstep-role master|participant``. For search and rescue the person of
+interest's placement (seeded, clear of obstacles) is computed from the world here, so the
+bridge, the mission manager and the scorer agree on it. A broken scenario file or a
+missing world makes it exit non-zero with the file and key, which stops roslaunch.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import yaml
 
-from uav_autonomy.core.scenario_config import load_scenario
+from uav_autonomy.core.scenario_config import Scenario, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
-from uav_autonomy.core.scenario_params import node_params, scripted_request
-from uav_common.config import ConfigError, to_mapping
+from uav_autonomy.core.scenario_params import (
+    RunContext,
+    bridge_cameras,
+    needs_person,
+    node_params,
+    scripted_request,
+    sitl_capacity_mah,
+)
+from uav_autonomy.core.scenario_world import DEFAULT_CACHE_DIR, derived_world_yaml, load_world, place_person
+from uav_common.config import ConfigError, load_yaml_mapping, to_mapping
+
+REPO_ROOT = Path(__file__).resolve().parents[6]
+
+
+def run_context(
+    scenario: Scenario, node: str, *, run_dir: str, cache_dir: Path | None, lockstep_role: str
+) -> RunContext:
+    """The world-dependent part of a node's settings (loads the world only when needed)."""
+    person: dict[str, Any] | None = None
+    if needs_person(scenario) and node in ("sim_bridge", "mission_manager", "scorer"):
+        assert scenario.search is not None
+        placement = place_person(scenario.search.person, load_world(scenario, cache_dir))
+        person = placement.as_dict()
+    world_yaml = ""
+    if node == "sim_bridge":
+        world_yaml = str(derived_world_yaml(scenario, (cache_dir or DEFAULT_CACHE_DIR).parent / "scenario_worlds"))
+    capacity = sitl_capacity_mah(scenario, REPO_ROOT / "config" / "sitl.yaml")
+    base = load_yaml_mapping(REPO_ROOT / "config" / "map_server.yaml") if node == "map_server" else {}
+    cameras = (
+        bridge_cameras(load_yaml_mapping(REPO_ROOT / "config" / "sim_bridge.yaml"), scenario)
+        if node == "scorer"
+        else {}
+    )
+    return RunContext(
+        map_server_base=base,
+        cameras=cameras,
+        run_dir=run_dir,
+        world_yaml=world_yaml,
+        person=person,
+        battery_capacity_mah=capacity,
+        lockstep_role=lockstep_role,
+    )
 
 
 def main() -> None:
-    args = [a for a in sys.argv[1:] if not a.startswith("__")]  # roslaunch adds __name:= etc.
-    if len(args) != 2:
-        sys.stderr.write("usage: scenario_params SCENARIO.yaml NODE|scenario|scripted\n")
-        sys.exit(2)
+    argv = [a for a in sys.argv[1:] if not a.startswith("__")]  # roslaunch adds __name:= etc.
+    parser = argparse.ArgumentParser(prog="scenario_params", description="a node's settings for a scenario, as YAML")
+    parser.add_argument("scenario", type=Path)
+    parser.add_argument("node")
+    parser.add_argument("--run-dir", default="")
+    parser.add_argument("--world-cache-dir", default="")
+    parser.add_argument("--lockstep-role", default="master", choices=("master", "participant"))
+    args = parser.parse_args(argv)
     try:
-        scenario = load_scenario(Path(args[0]))
-        if args[1] == "scenario":
-            data = to_mapping(scenario)
-        elif args[1] == "scripted":
+        scenario = load_scenario(args.scenario)
+        if args.node == "scenario":
+            data: Any = to_mapping(scenario)
+        elif args.node == "scripted":
             data = to_mapping(scripted_request(scenario))
         else:
-            data = node_params(scenario, args[1])
+            cache = Path(args.world_cache_dir).expanduser() if args.world_cache_dir else None
+            ctx = run_context(
+                scenario, args.node, run_dir=args.run_dir, cache_dir=cache, lockstep_role=args.lockstep_role
+            )
+            data = node_params(scenario, args.node, ctx)
     except (ConfigError, ScenarioError) as err:
         sys.stderr.write(f"scenario_params: {err}\n")
         sys.exit(1)

@@ -8,20 +8,29 @@ Subscribes:
     ``/detections/ground_truth`` and the scenario's ``search.detection_topic`` (uav_msgs/DetectionArray),
     ``/scenario/tracks`` (uav_msgs/TrackArray), ``/sim/collision`` (uav_msgs/Collision),
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
+    ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
     ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
     camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times.
 Publishes:
     ``/scenario/metrics`` (uav_msgs/RunMetrics) at ``scoring.metrics_rate_hz`` (sim time) and once at the end;
-    ``/scenario/snapshot/layers`` and ``/scenario/snapshot/features`` (uav_msgs/GridLayers) and
-    ``/scenario/snapshot/<cam>/{color,depth,instance}`` (sensor_msgs/Image) at ``scoring.snapshot_times_s``
-    and at the end, for the report.
+    ``/scenario/snapshot/layers`` and ``/scenario/snapshot/features`` (uav_msgs/GridLayers, at most
+    ``scoring.snapshot_max_cells`` per side) and ``/scenario/snapshot/<cam>/{color,depth,instance}``
+    (sensor_msgs/Image) at ``scoring.snapshot_times_s`` and at the end, for the report.
+Calls:
+    ``/map_server/export_occupied`` (uav_msgs/ExportVoxels) every ``scoring.map_accuracy_period_s`` of
+    simulation time and at the end: the map's occupied voxels against the world's surface voxels.
 Parameters:
     ``~scenario`` (str, required): the scenario file.
-    ``~run_dir`` (str, default ""): where ``metrics.json`` and ``timeseries.csv`` are written
-    (atomically, every metrics period, so a crash keeps what was scored); "" writes nothing.
-    ``~cameras`` (list, default [nadir, forward]).
+    ``~run_dir`` (str, default ""): where ``metrics.json``, ``timeseries.csv`` and ``scenario.yaml`` are
+    written (atomically, every metrics period, so a crash keeps what was scored); "" writes nothing.
+    ``~world_cache_dir`` (str, ""): the bridge's world cache (the ground truth is the bridge's world).
+    ``~run/person`` (dict): the person of interest ``{name, instance_id, x_m, y_m}`` (scenario_params).
+    ``~run/camera_pitch_deg`` (dict): camera mount pitches (view-angle context of depth frames).
+    ``~cameras`` (list, default [nadir, forward]); ``~map_server`` (str, default ``/map_server``).
 
-Scoring itself is :class:`uav_autonomy.core.scoring_run.RunScorer`.
+Scoring itself is :class:`uav_autonomy.core.scoring_run.RunScorer`; the ground truth comes from
+:func:`uav_autonomy.core.scenario_world.scene_truth` (surface voxels are computed in the background
+the first time, then cached on disk).
 """
 
 from __future__ import annotations
@@ -31,33 +40,40 @@ import json
 import math
 import os
 import sys
+import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rospy
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import BatteryState, Image
 
 from uav_autonomy.core.scenario_config import Scenario, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_world import load_world, scene_truth, world_summary
 from uav_autonomy.core.scoring_convert import (
     battery_from_msg,
     collision_from_msg,
     controller_from_msg,
+    depth_metrics_from_msg,
     detections_from_msg,
     goal_from_msg,
     grid_from_msg,
     pose_from_odometry,
     tracks_from_msg,
 )
-from uav_autonomy.core.scoring_run import RunScorer
+from uav_autonomy.core.scoring_metrics import voxel_accuracy, voxel_keys_from_indices
+from uav_autonomy.core.scoring_run import RunScorer, swath_width_m
 from uav_autonomy.core.scoring_types import SceneTruth
-from uav_autonomy.ros.scoring_msgs import json_safe, metrics_msg
+from uav_autonomy.ros.scoring_msgs import downsampled_layers_msg, json_safe, metrics_msg, run_versions
 from uav_common.config import ConfigError
 from uav_msgs.msg import (
     Collision,
     ControllerState,
+    DepthMetrics,
     DetectionArray,
     GoalReason,
     GridLayers,
@@ -65,12 +81,15 @@ from uav_msgs.msg import (
     ScenarioStatus,
     TrackArray,
 )
+from uav_msgs.srv import ExportVoxels
 
 IMAGE_KINDS = {"color": "color/image_raw", "depth": "depth/image_raw", "instance": "instance/image_raw"}
+#: Subscriber queues: deep enough that a replay at full speed loses nothing.
+QUEUE = 2000
 
 
 def default_truth(scenario: Scenario) -> SceneTruth:
-    """The scene's bounds from the scenario (square of ``world.size_m`` around home)."""
+    """The scene's bounds from the scenario (square of ``world.size_m`` around home), until the world is loaded."""
     half = scenario.world.size_m / 2.0
     return SceneTruth(bounds_m=(-half, -half, half, half))
 
@@ -82,23 +101,42 @@ def write_atomic(path: Path, text: str) -> None:
 
 
 class ScorerNode:
-    def __init__(self, scenario: Scenario, run_dir: Path | None, cameras: list[str]) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        run_dir: Path | None,
+        cameras: list[str],
+        *,
+        person: dict[str, Any],
+        camera_pitch_deg: dict[str, float],
+        map_camera_hfov_deg: float = 90.0,
+        world_cache_dir: Path | None,
+        map_server_ns: str = "/map_server",
+    ) -> None:
         self.scenario = scenario
         self.run_dir = run_dir
         self.cameras = cameras
+        self.world_cache_dir = world_cache_dir
+        self.map_server_ns = map_server_ns.rstrip("/")
         search = scenario.search
         self.detection_topic = search.detection_topic if search else "/detections/ground_truth"
         self.scorer = RunScorer(
             spec=scenario.scoring,
             truth=default_truth(scenario),
             detection_source="ground_truth" if self.detection_topic == "/detections/ground_truth" else "detector",
+            person_id=int(person.get("instance_id", 0)),
             tracked_camera=search.camera if search else "forward",
             cruise_speed_mps=scenario.autonomy.cruise_speed_mps,
+            swath_m_per_m=swath_width_m(1.0, map_camera_hfov_deg),
+            camera_pitch_deg=dict(camera_pitch_deg) or {"nadir": 90.0, "forward": 25.0},
         )
+        self.person = person
         self.lock = threading.Lock()
         self.start_s: float | None = None
         self.stopped = False
         self.finished = False
+        self._finish_lock = threading.Lock()
+        self._final = False
         self.rows: list[dict[str, Any]] = []
         self.snapshots_due = list(scenario.scoring.snapshot_times_s)
         self.last_layers: GridLayers | None = None
@@ -106,33 +144,76 @@ class ScorerNode:
         self.image_subs: list[rospy.Subscriber] = []
         self.pubs: dict[str, rospy.Publisher] = {}
         self.metrics_pub: rospy.Publisher | None = None
+        self.world_info: dict[str, Any] = {}
+        self.truth_note = "loading the world"
+        self._accuracy_busy = threading.Lock()
+        self._next_accuracy_s = -math.inf
+        self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
+        self.versions = run_versions()
 
     # ---- wiring --------------------------------------------------------------------------
 
     def start(self) -> None:
         self.metrics_pub = rospy.Publisher("/scenario/metrics", RunMetrics, queue_size=5, latch=True)
-        self.pubs["layers"] = rospy.Publisher("/scenario/snapshot/layers", GridLayers, queue_size=2, latch=True)
-        self.pubs["features"] = rospy.Publisher("/scenario/snapshot/features", GridLayers, queue_size=2, latch=True)
+        self.pubs["layers"] = rospy.Publisher("/scenario/snapshot/layers", GridLayers, queue_size=10, latch=True)
+        self.pubs["features"] = rospy.Publisher("/scenario/snapshot/features", GridLayers, queue_size=10, latch=True)
         for cam in self.cameras:
             for kind in IMAGE_KINDS:
                 self.pubs[f"{cam}/{kind}"] = rospy.Publisher(
-                    f"/scenario/snapshot/{cam}/{kind}", Image, queue_size=2, latch=True
+                    f"/scenario/snapshot/{cam}/{kind}", Image, queue_size=10, latch=True
                 )
         sub = rospy.Subscriber
-        sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=50)
-        sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=10)
-        sub("/map_server/layers", GridLayers, self.on_layers, queue_size=1, buff_size=2**24)
-        sub("/autonomy/features", GridLayers, self.on_features, queue_size=1, buff_size=2**24)
-        sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=50)
+        sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
+        sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
+        sub("/map_server/layers", GridLayers, self.on_layers, queue_size=2, buff_size=2**26)
+        sub("/autonomy/features", GridLayers, self.on_features, queue_size=2, buff_size=2**26)
+        sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=QUEUE)
         if self.detection_topic != "/detections/ground_truth":
-            sub(self.detection_topic, DetectionArray, self.on_detector, queue_size=50)
-        sub("/scenario/tracks", TrackArray, self._feed(tracks_from_msg, "add_tracks"), queue_size=50)
-        sub("/sim/collision", Collision, self._feed(collision_from_msg, "add_collision"), queue_size=10)
-        sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=10)
-        sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=10)
-        sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=10)
+            sub(self.detection_topic, DetectionArray, self.on_detector, queue_size=QUEUE)
+        sub("/scenario/tracks", TrackArray, self._feed(tracks_from_msg, "add_tracks"), queue_size=QUEUE)
+        sub("/sim/collision", Collision, self._feed(collision_from_msg, "add_collision"), queue_size=QUEUE)
+        sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=QUEUE)
+        sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=QUEUE)
+        sub(
+            "/depth_evaluator/metrics",
+            DepthMetrics,
+            self._feed(depth_metrics_from_msg, "add_depth_metrics"),
+            queue_size=QUEUE,
+        )
+        sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=QUEUE)
         rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
         rospy.on_shutdown(self.finish)
+        threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
+        if self.run_dir is not None and self.scenario.source is not None:
+            write_atomic(self.run_dir / "scenario.yaml", self.scenario.source.read_text())
+
+    def _load_truth(self) -> None:
+        """World -> bounds, ground, objects at once; surface voxels later (slow the first time)."""
+        t0 = time.monotonic()
+        try:
+            world = load_world(self.scenario, self.world_cache_dir)
+            moved = {}
+            if self.person.get("instance_id"):
+                moved[int(self.person["instance_id"])] = (float(self.person["x_m"]), float(self.person["y_m"]))
+            quick = scene_truth(world, resolution_m=None, cache_dir=self.world_cache_dir, moved=moved)
+            with self.lock:
+                self.scorer.truth = quick
+            self.world_info = world_summary(world, self.world_cache_dir)
+            self.truth_note = "computing surface voxels"
+            full = scene_truth(
+                world, resolution_m=self.scenario.map.resolution_m, cache_dir=self.world_cache_dir, moved=moved
+            )
+            with self.lock:
+                self.scorer.truth = full
+            self.truth_note = ""
+            rospy.loginfo(
+                f"scorer: ground truth of world {world.config.name} ({world.hash[:12]}): "
+                f"{full.surface_keys.size} surface voxels at {self.scenario.map.resolution_m} m "
+                f"in {time.monotonic() - t0:.1f} s"
+            )
+        except ScenarioError as err:
+            self.truth_note = f"no ground truth: {err}"
+            rospy.logerr(f"scorer: {self.truth_note}; % mapped uses world.size_m, no map IoU")
 
     def _feed(self, convert: Any, method: str) -> Any:
         def callback(msg: Any) -> None:
@@ -155,17 +236,20 @@ class ScorerNode:
     def on_truth_detections(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         with self.lock:
-            self.scorer.add_detections(frame, is_truth=True)
+            if not self.finished:
+                self.scorer.add_detections(frame, is_truth=True)
 
     def on_detector(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         with self.lock:
-            self.scorer.add_detections(frame, is_truth=False)
+            if not self.finished:
+                self.scorer.add_detections(frame, is_truth=False)
 
     def on_controller(self, msg: ControllerState) -> None:
         sample = controller_from_msg(msg, rospy.get_time())
         with self.lock:
-            self.scorer.add_controller(sample)
+            if not self.finished:
+                self.scorer.add_controller(sample)
 
     def on_status(self, msg: ScenarioStatus) -> None:
         t = msg.header.stamp.to_sec()
@@ -177,16 +261,22 @@ class ScorerNode:
                 self.scorer.mark_complete(
                     self.start_s + msg.complete_time_s, "person confirmed" if msg.target_found else "mission complete"
                 )
-            if msg.stop and not self.stopped:
+            first_stop = msg.stop and not self.stopped
+            if first_stop:
                 self.stopped = True
                 self.scorer.add_event(t, f"stop: {msg.stop_reason}")
-        if msg.stop:
-            self.finish()
+        if first_stop:
+            # Final metrics at the stop instant (not whenever this callback runs), so a live run and its
+            # replay end on the same sample.
+            self.finish(at_s=t)
 
     def on_tick(self, _event: rospy.timer.TimerEvent) -> None:
         now = rospy.get_time()
-        if now <= 0 or self.finished:
+        if now <= 0 or self.finished or self._finish_lock.locked():
             return
+        if now >= self._next_accuracy_s:
+            self._next_accuracy_s = now + self.scenario.scoring.map_accuracy_period_s
+            threading.Thread(target=self._map_accuracy, args=(now,), daemon=True).start()
         self._emit(now)
         elapsed = now - self.start_s if self.start_s is not None else None
         if elapsed is None or not self.snapshots_due:
@@ -197,9 +287,42 @@ class ScorerNode:
             self.snapshots_due.pop(0)
             self._publish_grids()
 
+    # ---- map accuracy ----------------------------------------------------------------------
+
+    def _map_accuracy(self, t_s: float, *, wait: bool = False) -> None:
+        """Export the map's occupied voxels and compare them with the truth (off every lock but our own)."""
+        if not self._accuracy_busy.acquire(blocking=wait):
+            return  # the previous export is still running
+        try:
+            truth_keys = self.scorer.truth.surface_keys
+            if truth_keys.size == 0:
+                return
+            service = f"{self.map_server_ns}/export_occupied"
+            path = self._export_dir / "occupied.npy"
+            try:
+                rospy.wait_for_service(service, timeout=1.0)
+                resp = rospy.ServiceProxy(service, ExportVoxels)(str(path), self.scenario.map.resolution_m)
+            except (rospy.ROSException, rospy.ServiceException) as err:
+                rospy.logwarn_throttle(30.0, f"scorer: {service} unavailable ({err}); no map IoU yet")
+                return
+            if not resp.success:
+                rospy.logwarn_throttle(30.0, f"scorer: {service} failed: {resp.message}")
+                return
+            try:
+                cells = np.load(path)
+            except (OSError, ValueError) as err:
+                rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
+                return
+            accuracy = voxel_accuracy(voxel_keys_from_indices(cells.reshape(-1, 3)), truth_keys)
+            with self.lock:
+                if not self.finished or wait:
+                    self.scorer.set_map_accuracy(t_s, accuracy)
+        finally:
+            self._accuracy_busy.release()
+
     # ---- output --------------------------------------------------------------------------
 
-    def _emit(self, now: float) -> None:
+    def _summary(self, now: float) -> tuple[dict[str, Any], dict[str, Any]]:
         with self.lock:
             row = self.scorer.sample(now)
             summary = self.scorer.summary(now)
@@ -207,6 +330,17 @@ class ScorerNode:
         summary["stop_reason"] = next(
             (e["what"][6:] for e in reversed(summary["events"]) if e["what"].startswith("stop: ")), ""
         )
+        summary["world"] = self.world_info
+        if self.person:
+            summary["person"] = dict(self.person)
+        if self.truth_note:
+            summary["notes"] = [self.truth_note]
+        summary["versions"] = self.versions
+        summary["final"] = self._final
+        return row, summary
+
+    def _emit(self, now: float) -> None:
+        row, summary = self._summary(now)
         self.rows.append(row)
         if self.metrics_pub is not None:
             self.metrics_pub.publish(metrics_msg(rospy.Time.from_sec(now), row, summary))
@@ -233,30 +367,36 @@ class ScorerNode:
                 holder: dict[str, rospy.Subscriber] = {}
 
                 def once(msg: Image, key: str = f"{cam}/{kind}", holder: dict[str, rospy.Subscriber] = holder) -> None:
-                    self.pubs[key].publish(msg)
                     sub = holder.pop("sub", None)
-                    if sub is not None:
-                        sub.unregister()
+                    if sub is None:
+                        return
+                    sub.unregister()
+                    self.pubs[key].publish(msg)
 
                 holder["sub"] = rospy.Subscriber(topic, Image, once, queue_size=1, buff_size=2**24)
                 self.image_subs.append(holder["sub"])
 
     def _publish_grids(self) -> None:
         self.image_subs = []
+        max_cells = self.scenario.scoring.snapshot_max_cells
         if self.last_layers is not None:
-            self.pubs["layers"].publish(self.last_layers)
+            self.pubs["layers"].publish(downsampled_layers_msg(self.last_layers, max_cells))
         if self.last_features is not None:
-            self.pubs["features"].publish(self.last_features)
+            self.pubs["features"].publish(downsampled_layers_msg(self.last_features, max_cells))
 
-    def finish(self) -> None:
-        """Final metrics and snapshots; idempotent (stop status, then shutdown)."""
-        if self.finished:
-            return
-        now = rospy.get_time()
-        if now > 0:
-            self._publish_grids()
-            self._emit(now)
-        self.finished = True
+    def finish(self, at_s: float | None = None) -> None:
+        """Final map accuracy, metrics (``"final": true``) and snapshots, once (stop status or shutdown)."""
+        with self._finish_lock:
+            if self.finished:
+                return
+            now = at_s if at_s is not None else rospy.get_time()
+            if now > 0 and not rospy.is_shutdown():
+                self._map_accuracy(now, wait=True)
+            if now > 0:
+                self._publish_grids()
+                self._final = True
+                self._emit(now)
+            self.finished = True
 
 
 def main() -> None:
@@ -273,6 +413,17 @@ def main() -> None:
     run_dir = Path(run_dir_text) if run_dir_text else None
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
-    node = ScorerNode(scenario, run_dir, list(rospy.get_param("~cameras", ["nadir", "forward"])))
+    cache_text = str(rospy.get_param("~world_cache_dir", ""))
+    run = rospy.get_param("~run", {}) or {}
+    node = ScorerNode(
+        scenario,
+        run_dir,
+        list(rospy.get_param("~cameras", ["nadir", "forward"])),
+        person=dict(run.get("person") or {}),
+        camera_pitch_deg={str(k): float(v) for k, v in (run.get("camera_pitch_deg") or {}).items()},
+        map_camera_hfov_deg=float(run.get("map_camera_hfov_deg", 90.0)),
+        world_cache_dir=Path(cache_text).expanduser() if cache_text else None,
+        map_server_ns=str(rospy.get_param("~map_server", "/map_server")),
+    )
     node.start()
     rospy.spin()

@@ -4,16 +4,24 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rospy
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
 
+from uav_autonomy.core.scoring_convert import grid_from_msg
+from uav_autonomy.core.scoring_metrics import downsample_grid
 from uav_autonomy.core.scoring_types import Track as TrackRecord
-from uav_msgs.msg import RunMetrics, ScenarioStatus, Track, TrackArray
+from uav_msgs.msg import GridLayers, RunMetrics, ScenarioStatus, Track, TrackArray
 
-__all__ = ["json_safe", "metrics_msg", "status_msg", "tracks_msg"]
+__all__ = ["downsampled_layers_msg", "json_safe", "metrics_msg", "run_versions", "status_msg", "tracks_msg"]
 
 
 def json_safe(data: Any) -> Any:
@@ -86,3 +94,47 @@ def status_msg(stamp: rospy.Time, fields: dict[str, Any]) -> ScenarioStatus:
     msg.target_position = _point(fields.get("target_position"))
     msg.stop = bool(fields.get("stop", False))
     return msg
+
+
+def downsampled_layers_msg(msg: GridLayers, max_cells: int) -> GridLayers:
+    """A GridLayers message reduced to at most ``max_cells`` per side (same header and layer names)."""
+    if max(int(msg.width), int(msg.height)) <= max_cells:
+        return msg
+    grid = downsample_grid(grid_from_msg(msg), max_cells)
+    rows, cols = grid.shape
+    out = GridLayers(header=msg.header, resolution_m=grid.resolution_m)
+    out.origin_x_m, out.origin_y_m = grid.origin_x_m, grid.origin_y_m
+    out.width, out.height = cols, rows
+    out.names = list(grid.layers)
+    out.data = np.concatenate([grid.layers[n].astype(np.float32).ravel() for n in out.names]).tolist()
+    return out
+
+
+def run_versions() -> dict[str, str]:
+    """What produced a run: the checkout's commit, Python, ROS and the libraries behind the numbers."""
+    repo = Path(__file__).resolve().parents[5]
+    out = {"python": platform.python_version(), "ros": os.environ.get("ROS_DISTRO", "unknown")}
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            check=False,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
+        out["commit"] = (commit or "unknown") + (" (modified)" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        out["commit"] = "unknown"
+    for dist in ("numpy", "scipy", "opencv-python-headless", "motmetrics", "pymavlink", "jsbsim", "moderngl"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            continue
+    return out

@@ -1,0 +1,136 @@
+"""Thin launchers that let roslaunch start a run's non-ROS processes from the scenario file.
+
+``nodes/sitl``, ``nodes/mavlink_router`` and ``nodes/scenario_record`` each parse their
+arguments (roslaunch's ``__name:=``/``__log:=`` are dropped or passed through), build the
+command line from the scenario (:mod:`uav_autonomy.core.scenario_launch`) and ``exec``
+the real program, so roslaunch's SIGINT reaches ``uav-sitl``, ``uav-mavlink-router`` or
+``rosbag record`` directly and each shuts down cleanly (the bag is closed, the router
+flushes its log).
+
+    sitl SCENARIO --run-dir DIR --port sitl_tcp=5760 --port sim=4560 [--no-router] [--print]
+    mavlink_router --run-dir DIR --port sitl_tcp=5760 --port router_tcp=5790 ... [--print]
+    scenario_record SCENARIO --run-dir DIR [--print]
+
+``--print`` prints the command (and the router configuration) instead of running it.
+A broken scenario file or a bad port exits with status 2 and a message saying what to fix.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from uav_autonomy.core.scenario_config import Scenario, load_scenario, recorded_topics
+from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_launch import RunPorts, router_conf, sitl_argv
+from uav_common.config import ConfigError
+
+__all__ = ["record_main", "router_main", "sitl_main"]
+
+
+def _split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    ours = [a for a in argv if not a.startswith("__")]
+    ros = [a for a in argv if a.startswith("__")]
+    return ours, ros
+
+
+def _fail(prog: str, message: str) -> None:
+    sys.stderr.write(f"{prog}: {message}\n")
+    sys.exit(2)
+
+
+def _ports(items: Sequence[str]) -> RunPorts:
+    data: dict[str, str] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            msg = f"--port takes NAME=PORT, got {item!r}"
+            raise ScenarioError(msg)
+        data[name.strip()] = value.strip()
+    return RunPorts.from_mapping(data)
+
+
+def _load(prog: str, path: Path) -> Scenario:
+    try:
+        return load_scenario(path)
+    except (ConfigError, ScenarioError) as err:
+        _fail(prog, str(err))
+        raise  # unreachable
+
+
+def _exec(prog: str, argv: list[str], print_only: bool) -> None:
+    if print_only:
+        sys.stdout.write(" ".join(argv) + "\n")
+        return
+    exe = shutil.which(argv[0])
+    if exe is None:
+        _fail(prog, f"{argv[0]} is not on PATH; run inside the project environment (scripts/in_env) or `make setup`")
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(exe, argv)  # type: ignore[arg-type]
+
+
+def _parser(prog: str, *, scenario: bool) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog)
+    if scenario:
+        p.add_argument("scenario", type=Path)
+    p.add_argument("--run-dir", type=Path, required=True)
+    p.add_argument("--port", action="append", default=[], metavar="NAME=PORT")
+    p.add_argument("--print", action="store_true", dest="print_only")
+    return p
+
+
+def sitl_main() -> None:
+    prog = "sitl"
+    ours, _ros = _split_ros_args(sys.argv[1:])
+    p = _parser(prog, scenario=True)
+    p.add_argument("--no-router", action="store_true", help="the controller talks to the SITL's API link directly")
+    args = p.parse_args(ours)
+    scenario = _load(prog, args.scenario)
+    try:
+        ports = _ports(args.port)
+    except ScenarioError as err:
+        _fail(prog, str(err))
+        raise
+    args.run_dir.mkdir(parents=True, exist_ok=True)
+    argv = sitl_argv(scenario, ports, params_file=args.run_dir / "sitl_params.json", router=not args.no_router)
+    _exec(prog, argv, args.print_only)
+
+
+def router_main() -> None:
+    prog = "mavlink_router"
+    ours, _ros = _split_ros_args(sys.argv[1:])
+    p = _parser(prog, scenario=False)
+    args = p.parse_args(ours)
+    try:
+        ports = _ports(args.port)
+    except ScenarioError as err:
+        _fail(prog, str(err))
+        raise
+    args.run_dir.mkdir(parents=True, exist_ok=True)
+    conf = args.run_dir / "router.conf"
+    text = router_conf(ports, args.run_dir / "router")
+    if args.print_only:
+        sys.stdout.write(text)
+    conf.write_text(text)
+    # An empty -d folder: a system-wide /etc/mavlink-router/config.d never leaks into a run.
+    conf_dir = args.run_dir / "router.conf.d"
+    conf_dir.mkdir(exist_ok=True)
+    _exec(prog, ["uav-mavlink-router", "-c", str(conf), "-d", str(conf_dir)], args.print_only)
+
+
+def record_main() -> None:
+    prog = "scenario_record"
+    ours, ros = _split_ros_args(sys.argv[1:])
+    p = _parser(prog, scenario=True)
+    args = p.parse_args(ours)
+    scenario = _load(prog, args.scenario)
+    args.run_dir.mkdir(parents=True, exist_ok=True)
+    bag = args.run_dir / "run.bag"
+    # lz4 chunks: cheap to write, readable by rosbag and by the rosbags library.
+    argv = ["rosbag", "record", "--lz4", "--buffsize=512", "-O", str(bag), *recorded_topics(scenario), *ros]
+    _exec(prog, argv, args.print_only)

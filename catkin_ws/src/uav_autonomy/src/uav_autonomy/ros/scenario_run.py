@@ -1,0 +1,327 @@
+"""``uav-run SCENARIO.yaml``: run a scenario from a shell, show its progress, build its report.
+
+It writes the effective scenario (with command-line overrides) into a new run folder
+``runs/<name>-<YYYYmmdd-HHMMSS>/``, starts ``roslaunch uav_autonomy <mission>.launch``
+on a private ROS master and free ports, shows one progress line (simulation time,
+real-time factor, % mapped, battery, mode, goal), and when the mission manager
+stops the run (or on Ctrl-C) builds ``report.html`` from the bag and prints its
+path and a metric summary. The run folder holds ``metrics.json``,
+``timeseries.csv``, ``run.bag``, ``report.html`` and ``logs/``.
+
+Exit status: 0 the run ended on a stop criterion and the report was built;
+1 the run ended early (a node died, nothing was scored) or the report failed;
+2 bad scenario or command line; 130 interrupted (the report is still built).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as dt
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, TextIO
+
+import yaml
+
+from uav_autonomy.core.report_cli import headline, tool_versions
+from uav_autonomy.core.report_data import read_run_bag
+from uav_autonomy.core.report_html import build_report
+from uav_autonomy.core.scenario_config import Scenario, TimeMode, TimeSpec, load_scenario
+from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_launch import RunPorts
+from uav_common.config import ConfigError, to_mapping
+
+__all__ = ["main", "scenario_yaml"]
+
+REPO_ROOT = Path(__file__).resolve().parents[5]
+#: The demo: loiter this many simulated seconds (``make demo``).
+DEMO_SECONDS = 90.0
+
+
+def scenario_yaml(scenario: Scenario) -> str:
+    """The effective scenario as a self-contained YAML file (absolute world path, no ``source``)."""
+    data = to_mapping(scenario)
+    data.pop("source", None)
+    data["world"]["config"] = str(scenario.world_config_path)
+    header = f"# Effective scenario of this run (from {scenario.source}, with uav-run's overrides).\n"
+    return header + yaml.safe_dump(data, sort_keys=False)
+
+
+def _free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def allocate_ports(fixed: dict[str, str]) -> RunPorts:
+    """Free ports for everything this run binds; the GCS and MAVSDK targets stay at 14550/14541."""
+    udp = socket.SOCK_DGRAM
+    ports = {
+        "sitl_tcp": _free_port(),
+        "sim": _free_port(udp),
+        "router_tcp": _free_port(),
+        "controller": _free_port(udp),
+        "adhoc": _free_port(udp),
+        "gcs": 14550,
+        "mavsdk": 14541,
+    }
+    ports.update({k: int(v) for k, v in fixed.items() if k in ports})
+    return RunPorts.from_mapping({**ports, **fixed})
+
+
+class Progress:
+    """Latest status and metrics from the run (rospy callbacks), rendered as one line."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.status: Any = None
+        self.metrics: Any = None
+        self.wall_start = time.monotonic()
+
+    def on_status(self, msg: Any) -> None:
+        with self.lock:
+            self.status = msg
+
+    def on_metrics(self, msg: Any) -> None:
+        with self.lock:
+            self.metrics = msg
+
+    def line(self, limit_s: float) -> str:
+        with self.lock:
+            st, me = self.status, self.metrics
+        wall = time.monotonic() - self.wall_start
+        if st is None:
+            return f"[{wall:5.0f} s] starting: SITL, router, bridge, map server, autonomy..."
+
+        def num(v: float, fmt: str) -> str:
+            return format(v, fmt) if v is not None and math.isfinite(v) else "–"
+
+        mapped = me.mapped_pct if me is not None else st.mapped_pct
+        goal = st.goal
+        goal_txt = f"({goal.x:.0f}, {goal.y:.0f})" if math.isfinite(goal.x) else "–"
+        frac = min(1.0, st.sim_time_s / limit_s) if limit_s > 0 else 0.0
+        bar = "#" * int(frac * 20) + "." * (20 - int(frac * 20))
+        mode = st.controller_state or "–"
+        if st.autopilot_mode:
+            mode += f"/{st.autopilot_mode}"
+        return (
+            f"[{bar}] sim {st.sim_time_s:6.1f}/{limit_s:.0f} s  rtf {num(st.real_time_factor, '.1f')}x  "
+            f"mapped {num(mapped, '.2f')} %  battery {num(st.battery_pct, '.0f')} %  {mode}  goal {goal_txt}  "
+            f"{st.phase}{' ' + st.stop_reason if st.stop else ''}"
+        )
+
+
+def _wait_master(port: int, proc: subprocess.Popen[bytes], timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        with socket.socket() as sock:
+            sock.settimeout(0.2)
+            if sock.connect_ex(("127.0.0.1", port)) == 0:
+                return True
+        time.sleep(0.2)
+    return False
+
+
+def _tail(path: Path, lines: int = 25) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return ""
+
+
+def _stop(proc: subprocess.Popen[bytes], timeout_s: float = 40.0) -> None:
+    """SIGINT roslaunch's process group (it stops every node; rosbag closes the bag), then escalate."""
+    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 10.0), (signal.SIGKILL, 5.0)):
+        if proc.poll() is not None:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=wait_s)
+
+
+def _overrides(scenario: Scenario, args: argparse.Namespace) -> Scenario:
+    stop = scenario.stop
+    time_spec = scenario.time
+    if args.demo:
+        stop = replace(stop, time_limit_s=args.time_limit or DEMO_SECONDS, wall_timeout_s=600.0)
+    elif args.time_limit:
+        stop = replace(stop, time_limit_s=args.time_limit)
+    if args.lockstep:
+        time_spec = replace(time_spec, mode=TimeMode.LOCKSTEP)
+    if args.speed_factor:
+        time_spec = TimeSpec(mode=TimeMode.FREE, speed_factor=args.speed_factor, step_s=time_spec.step_s)
+    recording = replace(scenario.recording, enabled=False) if args.no_record else scenario.recording
+    out = replace(scenario, stop=stop, time=time_spec, recording=recording)
+    if args.name:
+        out = replace(out, name=args.name)
+    return out
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="uav-run", description="Run a scenario (SITL + router + ROS stack), show progress, build the report."
+    )
+    p.add_argument("scenario", type=Path, help="scenario file, e.g. config/scenarios/loiter.yaml")
+    p.add_argument("--demo", action="store_true", help=f"the make-demo run: {DEMO_SECONDS:g} simulated seconds")
+    p.add_argument("--time-limit", type=float, help="override stop.time_limit_s (simulated seconds)")
+    p.add_argument("--lockstep", action="store_true", help="run in lockstep (time.mode: lockstep)")
+    p.add_argument("--speed-factor", type=float, help="free-running at this speed factor")
+    p.add_argument("--no-record", action="store_true", help="no rosbag (no report figures beyond metrics)")
+    p.add_argument("--name", help="run name (default: the scenario's)")
+    p.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "runs", help="parent of the run folder")
+    p.add_argument("--run-dir", type=Path, help="exact run folder (default: RUNS_DIR/<name>-<time>)")
+    p.add_argument("--port", action="append", default=[], metavar="NAME=PORT", help="fix a port (see docs)")
+    p.add_argument("--world-cache-dir", default="", help="world cache folder (default: the bridge's)")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    return p.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:  # noqa: PLR0915
+    args = _parse(argv)
+    try:
+        scenario = _overrides(load_scenario(args.scenario), args)
+        fixed = dict(item.split("=", 1) for item in args.port)
+        ports = allocate_ports(fixed)
+    except (ConfigError, ScenarioError, ValueError) as err:
+        sys.stderr.write(f"uav-run: {err}\n")
+        return 2
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    run_dir = (args.run_dir or args.runs_dir / f"{scenario.name}-{stamp}").resolve()
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    scenario_path = run_dir / "scenario.yaml"
+    scenario_path.write_text(scenario_yaml(scenario))
+    try:
+        load_scenario(scenario_path)  # the written file must load like the original
+    except (ConfigError, ScenarioError) as err:
+        sys.stderr.write(f"uav-run: internal error, the effective scenario does not load: {err}\n")
+        return 2
+    master_port = _free_port()
+    env = dict(os.environ)
+    env.update(
+        ROS_MASTER_URI=f"http://127.0.0.1:{master_port}",
+        ROS_IP="127.0.0.1",
+        ROS_LOG_DIR=str(run_dir / "logs" / "ros"),
+        MESA_SHADER_CACHE_DIR=env.get("MESA_SHADER_CACHE_DIR", str(REPO_ROOT / "artifacts" / ".mesa_cache")),
+        PYTHONUNBUFFERED="1",
+    )
+    env.pop("ROS_HOSTNAME", None)
+    launch = f"{scenario.mission.value}.launch"
+    cmd = [
+        "roslaunch", "-p", str(master_port), "uav_autonomy", launch,
+        f"scenario:={scenario_path}", f"run_dir:={run_dir}", f"depth_source:={scenario.depth_source.value}",
+        f"record:={'true' if scenario.recording.enabled else 'false'}",
+        f"world_cache_dir:={args.world_cache_dir}",
+        f"sitl_tcp_port:={ports.sitl_tcp}", f"sim_port:={ports.sim}", f"router_tcp_port:={ports.router_tcp}",
+        f"gcs_port:={ports.gcs}", f"controller_port:={ports.controller}", f"mavsdk_port:={ports.mavsdk}",
+        f"adhoc_port:={ports.adhoc}",
+    ]  # fmt: skip
+    if shutil.which("roslaunch") is None:
+        sys.stderr.write("uav-run: roslaunch not found; run inside the project environment (scripts/in_env)\n")
+        return 2
+    launch_log = run_dir / "logs" / "roslaunch.log"
+    out.write(f"run folder: {run_dir}\n")
+    out.write(
+        f"scenario {scenario.name} ({scenario.mission.value}, {scenario.strategy.value}), "
+        f"{scenario.stop.time_limit_s:g} s simulated, time {scenario.time.mode.value}; "
+        f"ROS master :{master_port}, GCS udp:{ports.gcs}\n"
+    )
+    out.flush()
+    with launch_log.open("wb") as log:
+        proc = subprocess.Popen(
+            cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, start_new_session=True
+        )
+    interrupted = False
+
+    def on_signal(_sig: int, _frame: Any) -> None:
+        nonlocal interrupted
+        interrupted = True
+
+    old = signal.signal(signal.SIGINT, on_signal)
+    progress = Progress()
+    tty = out.isatty() and not args.quiet
+    try:
+        if not _wait_master(master_port, proc, 60.0):
+            sys.stderr.write(f"uav-run: roslaunch did not start (log {launch_log}):\n{_tail(launch_log)}\n")
+            _stop(proc)
+            return 1
+        _listen(progress, env)
+        last_print = 0.0
+        no_status_deadline = time.monotonic() + 180.0
+        while proc.poll() is None and not interrupted:
+            time.sleep(0.5)
+            line = progress.line(scenario.stop.time_limit_s)
+            if tty:
+                out.write("\r" + line[: shutil.get_terminal_size((160, 20)).columns - 1].ljust(40) + "\x1b[K")
+                out.flush()
+            elif not args.quiet and time.monotonic() - last_print >= 10.0:
+                out.write(line + "\n")
+                out.flush()
+                last_print = time.monotonic()
+            if progress.status is None and time.monotonic() > no_status_deadline:
+                sys.stderr.write(f"\nuav-run: no scenario status after 180 s; stopping (log {launch_log})\n")
+                break
+        if tty:
+            out.write("\n")
+    finally:
+        _stop(proc)
+        signal.signal(signal.SIGINT, old)
+    return _finish(run_dir, launch_log, progress, interrupted, out)
+
+
+def _listen(progress: Progress, env: dict[str, str]) -> None:
+    """Subscribe to the run's status and metrics (rospy in this process, on the run's master)."""
+    os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
+    os.environ["ROS_IP"] = env["ROS_IP"]
+    import rospy  # noqa: PLC0415
+
+    from uav_msgs.msg import RunMetrics, ScenarioStatus  # noqa: PLC0415
+
+    rospy.init_node("uav_run", anonymous=True, disable_signals=True, disable_rosout=True)
+    rospy.Subscriber("/scenario/status", ScenarioStatus, progress.on_status, queue_size=5)
+    rospy.Subscriber("/scenario/metrics", RunMetrics, progress.on_metrics, queue_size=5)
+
+
+def _finish(run_dir: Path, launch_log: Path, progress: Progress, interrupted: bool, out: TextIO) -> int:
+    status = progress.status
+    stopped = status is not None and status.stop
+    if interrupted:
+        out.write("interrupted: stopping the run and building the report from what was recorded\n")
+    elif not stopped:
+        out.write(f"the run ended before a stop criterion; roslaunch log: {launch_log}\n{_tail(launch_log, 15)}\n")
+    bag = run_dir / "run.bag"
+    rc = 130 if interrupted else (0 if stopped else 1)
+    if not bag.exists():
+        out.write(f"no bag in {run_dir} (recording off or the run died early); metrics: {run_dir / 'metrics.json'}\n")
+        return rc or (0 if (run_dir / "metrics.json").exists() else 1)
+    try:
+        run = read_run_bag(bag)
+        metrics_path = run_dir / "metrics.json"
+        if metrics_path.is_file():
+            import json  # noqa: PLC0415
+
+            with contextlib.suppress(json.JSONDecodeError):
+                run.summary = json.loads(metrics_path.read_text())
+        versions = {f"run: {k}": str(v) for k, v in (run.summary.get("versions") or {}).items()}
+        versions.update({f"report: {k}": v for k, v in tool_versions().items()})
+        report = build_report(run, run_dir, versions=versions)
+    except ScenarioError as err:
+        out.write(f"uav-run: the report could not be built: {err}\n")
+        return 1
+    out.write(f"report: {report.html_path}\n")
+    if report.missing:
+        out.write(f"  figures without data: {', '.join(report.missing)}\n")
+    out.write(f"  stop: {run.stop_reason or (status.stop_reason if status else '') or 'none'}\n")
+    out.write("\n".join(headline(run.summary)) + "\n")
+    return rc
