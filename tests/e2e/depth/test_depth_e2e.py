@@ -41,6 +41,9 @@ PERCEPTION_LAUNCH = REPO / "catkin_ws" / "src" / "uav_autonomy" / "launch" / "pe
 HOME = GeoPoint(47.397742, 8.545594, 488.0)  # config/sitl.yaml
 ALT_M = 50.0
 TARGET_EN_M = (80.0, 110.0)  # a village of the test world (roofs below 35 m)
+# roslaunch escalates SIGINT -> SIGTERM -> SIGKILL on its nodes within ~17 s; it must live that
+# long, or a node stuck in rospy's shutdown (a SIGINT during its start-up can deadlock it) is orphaned.
+ROSLAUNCH_STOP_S = 20.0
 
 
 class Topics:
@@ -200,8 +203,8 @@ def test_estimated_depth_feeds_the_map_in_closed_loop(tmp_path: Path) -> None:
             saved = topics.save_example(run_dir / "example_color_truth_estimate.png")
             gcs.close()
         finally:
-            perception.stop()
-            bridge.stop()
+            perception.stop(timeout_s=ROSLAUNCH_STOP_S)
+            bridge.stop(timeout_s=ROSLAUNCH_STOP_S)
     # Depth agrees with ground truth, frame by frame, in level flight.
     within = np.array([m.overall.within_abs for m in metrics])
     coverage = np.array([m.overall.coverage for m in metrics])

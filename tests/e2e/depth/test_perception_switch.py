@@ -10,6 +10,9 @@ import rosgraph
 from helpers.procs import REPO, Proc, roscore
 
 LAUNCH = REPO / "catkin_ws" / "src" / "uav_autonomy" / "launch" / "perception.launch"
+# roslaunch escalates SIGINT -> SIGTERM -> SIGKILL on its nodes within ~17 s; it must live that
+# long, or a node stuck in rospy's shutdown (a SIGINT during its start-up can deadlock it) is orphaned.
+ROSLAUNCH_STOP_S = 20.0
 
 
 def graph() -> tuple[dict[str, set[str]], set[str]]:
@@ -58,7 +61,7 @@ def test_depth_source_switches_the_map_input(source: str, cloud: str, depth_node
                 assert "/depth_estimator" not in nodes
                 assert "/depth_evaluator" not in nodes
         finally:
-            proc.stop()
+            proc.stop(timeout_s=ROSLAUNCH_STOP_S)
 
 
 def test_a_bad_depth_source_fails_the_launch() -> None:
@@ -67,5 +70,5 @@ def test_a_bad_depth_source_fails_the_launch() -> None:
         try:
             assert proc.wait(30.0) != 0
         finally:
-            proc.stop()
+            proc.stop(timeout_s=ROSLAUNCH_STOP_S)
         assert "lidar" in proc.log_text()
