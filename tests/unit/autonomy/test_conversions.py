@@ -109,3 +109,30 @@ def test_odometry_from_autopilot_telemetry_is_enu_flu() -> None:
     assert (msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z) == (5.0, 10.0, 20.0)
     assert abs(msg.pose.pose.orientation.w) == pytest.approx(1.0)
     assert msg.twist.twist.linear.y == pytest.approx(2.0)
+
+
+def test_octomap_read_from_its_serialized_bytes() -> None:
+    import io  # noqa: PLC0415
+
+    from octomap_msgs.msg import Octomap  # noqa: PLC0415
+
+    from uav_autonomy.ros.autonomy_conversions import octomap_from_buffer  # noqa: PLC0415
+
+    msg = Octomap()
+    msg.header.frame_id = "map"
+    msg.header.stamp.secs, msg.header.stamp.nsecs = 12, 500_000_000
+    msg.binary = True
+    msg.id = "OcTree"
+    msg.resolution = 0.5
+    payload = bytes([0x00, 0xC0, 0x03, 0x00, 0xFF, 0x7F, 0x80])
+    msg.data = [b - 256 if b > 127 else b for b in payload]  # int8[]
+    buf = io.BytesIO()
+    msg.serialize(buf)
+    blob = octomap_from_buffer(buf.getvalue())
+    assert (blob.frame_id, blob.binary, blob.tree_id, blob.resolution_m) == ("map", True, "OcTree", 0.5)
+    assert blob.stamp_s == pytest.approx(12.5)
+    assert blob.data == payload
+    with pytest.raises(InvalidInputError, match="truncated"):
+        octomap_from_buffer(buf.getvalue()[:-1])
+    with pytest.raises(InvalidInputError, match="after its data"):
+        octomap_from_buffer(buf.getvalue() + b"\x00")

@@ -152,3 +152,33 @@ def test_planner_config_validation() -> None:
         from_mapping(PlannerConfig, {"geofence_xy_m": [[0, 0], [1, 1]]}, source="t")
     with pytest.raises(ConfigError, match="algorithm"):
         from_mapping(PlannerConfig, {"algorithm": "rrt"}, source="t")
+
+
+def test_remaining_path_starts_at_the_drone_and_keeps_what_is_ahead() -> None:
+    from uav_autonomy.core.planning import remaining_path  # noqa: PLC0415
+
+    path = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 50.0], [300.0, 0.0, 50.0], [300.0, 0.0, 20.0]])
+    rest = remaining_path(path, (120.0, 3.0, 49.0))
+    np.testing.assert_allclose(rest, [[120, 3, 49], [300, 0, 50], [300, 0, 20]])
+    np.testing.assert_allclose(remaining_path(path, (0.0, 0.0, 10.0)), [[0, 0, 10], *path[1:]])  # climbing
+    np.testing.assert_allclose(remaining_path(path[:1], (1.0, 2.0, 3.0)), [[1, 2, 3], [0, 0, 0]])
+
+
+def test_dem_conflict_finds_a_new_tower_under_the_cruise() -> None:
+    from uav_autonomy.core.planning import dem_conflict_m  # noqa: PLC0415
+
+    dem = ElevationMap(SPEC, np.zeros(SPEC.shape, dtype=np.float32))
+    cfg = PlannerConfig(max_altitude_m=300.0)
+    path = plan_straight((0.0, 0.0, 10.0), (300.0, 0.0), dem, cfg)  # cruise at 50 m
+    assert dem_conflict_m(path, dem, clearance_m=15.0, skip_m=20.0) is None
+    assert dem_conflict_m(path, dem, clearance_m=15.0) == 0.0  # the start, 10 m up, is too low; hence skip_m
+    elev = np.zeros(SPEC.shape, dtype=np.float32)
+    elev[np.ix_((SPEC.cell_centers_y_m() > -10) & (SPEC.cell_centers_y_m() < 10),
+                (SPEC.cell_centers_x_m() > 150) & (SPEC.cell_centers_x_m() < 160))] = 40.0  # fmt: skip
+    tower = ElevationMap(SPEC, elev)
+    hit = dem_conflict_m(path, tower, clearance_m=15.0, skip_m=20.0)
+    assert hit is not None
+    assert hit == pytest.approx(40.0 + 150.0, abs=1.0)  # 40 m climb, then 150 m along the cruise
+    replanned = plan_straight((0.0, 0.0, 50.0), (300.0, 0.0), tower, cfg)
+    assert dem_conflict_m(replanned, tower, clearance_m=15.0, skip_m=20.0) is None
+    assert replanned[:, 2].max() == pytest.approx(90.0)

@@ -43,12 +43,14 @@ __all__ = [
     "ElevationMap",
     "PlannerConfig",
     "VoxelGrid",
+    "dem_conflict_m",
     "goal_altitude_m",
     "max_elevation_along_m",
     "path_conflict_m",
     "plan",
     "plan_astar",
     "plan_straight",
+    "remaining_path",
     "search_voxels",
 ]
 
@@ -521,6 +523,45 @@ def search_voxels(
         out.append(points[nxt])
         anchor = nxt
     return _dedupe(np.asarray(out, dtype=np.float64))
+
+
+def remaining_path(path: PathArray, position_enu: tuple[float, float, float]) -> PathArray:
+    """What is left of ``path`` for a vehicle at ``position_enu``: the position, then the waypoints after
+    the point of the path nearest to it (ties go to the later leg)."""
+    p = np.asarray(position_enu, dtype=np.float64)
+    if len(path) < 2:
+        return np.vstack([p, path])
+    best, best_d = 0, math.inf
+    for n, (a, b) in enumerate(itertools.pairwise(path)):
+        ab = b - a
+        denom = float(ab @ ab)
+        t = 0.0 if denom == 0.0 else min(max(float((p - a) @ ab) / denom, 0.0), 1.0)
+        d = float(np.linalg.norm(a + t * ab - p))
+        if d <= best_d + 1e-9:
+            best, best_d = n, d
+    return np.vstack([p, path[best + 1 :]])
+
+
+def dem_conflict_m(path: PathArray, dem: ElevationMap, clearance_m: float, skip_m: float = 0.0) -> float | None:
+    """Arc length of the first point of ``path`` less than ``clearance_m`` above the known DEM (after
+    ``skip_m``); None if the whole path keeps the clearance over every known cell."""
+    travelled = 0.0
+    step = 0.25 * dem.spec.resolution_m
+    for a, b in itertools.pairwise(path):
+        length = float(np.linalg.norm(b - a))
+        n = max(2, math.ceil(length / step) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        pts = a[None, :] + t[:, None] * (b - a)[None, :]
+        rows, cols, inside = dem.spec.cells_of(pts[:, :2])
+        elev = np.full(n, np.nan)
+        elev[inside] = dem.elevation_m[rows[inside], cols[inside]]
+        s = travelled + t * length
+        with np.errstate(invalid="ignore"):
+            hit = (pts[:, 2] < elev + clearance_m) & (s >= skip_m)
+        if hit.any():
+            return float(s[np.argmax(hit)])
+        travelled += length
+    return None
 
 
 def _dedupe(path: PathArray) -> PathArray:

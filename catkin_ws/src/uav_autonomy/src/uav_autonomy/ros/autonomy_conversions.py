@@ -10,7 +10,9 @@ so pixel ``(r, c)`` covers ``x = origin_x + c*res``, ``y = origin_y + (H-1-r)*re
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -29,6 +31,7 @@ from uav_autonomy.ros.autonomy_mavlink import OdometryReading
 from uav_msgs.msg import ControllerState, FeatureWeights, GoalReason, GridLayers, SearchTarget
 
 __all__ = [
+    "OctomapBlob",
     "battery_msg",
     "color_image_msg",
     "controller_state_msg",
@@ -37,6 +40,7 @@ __all__ = [
     "grid_layers_from_msg",
     "grid_layers_msg",
     "map_meta_data",
+    "octomap_from_buffer",
     "odometry_msg",
     "path_from_msg",
     "path_msg",
@@ -87,6 +91,58 @@ def grid_layers_msg(spec: GridSpec, layers: Mapping[str, npt.NDArray[np.float32]
     stacked = np.stack([np.asarray(layers[n], dtype=np.float32) for n in layers]) if layers else np.zeros(0)
     msg.data = stacked.astype(np.float32).ravel().tolist()
     return msg
+
+
+@dataclass(frozen=True)
+class OctomapBlob:
+    """An ``octomap_msgs/Octomap`` read straight from its serialized bytes (``data`` stays bytes)."""
+
+    frame_id: str
+    stamp_s: float
+    binary: bool
+    tree_id: str
+    resolution_m: float
+    data: bytes
+
+
+def octomap_from_buffer(buff: bytes) -> OctomapBlob:
+    """Parse a serialized ``octomap_msgs/Octomap`` (as a ``rospy.AnyMsg`` subscriber receives it).
+
+    genpy turns the ``int8[] data`` of a large map into millions of Python ints; reading the ROS
+    serialization directly keeps it one ``bytes`` object. Layout: Header (uint32 seq, time stamp,
+    string frame_id), bool binary, string id, float64 resolution, int8[] data; little-endian,
+    strings and arrays prefixed by a uint32 length.
+
+    Raises:
+        InvalidInputError: the buffer is shorter than its lengths say, or has bytes left over.
+    """
+    view = memoryview(buff)
+    pos = 0
+
+    def take(n: int) -> memoryview:
+        nonlocal pos
+        if pos + n > len(view):
+            msg = f"octomap message truncated: needs {pos + n} bytes, has {len(view)}"
+            raise InvalidInputError(msg)
+        out = view[pos : pos + n]
+        pos += n
+        return out
+
+    def string() -> str:
+        (n,) = struct.unpack("<I", take(4))
+        return bytes(take(n)).decode("utf-8", errors="replace")
+
+    _seq, secs, nsecs = struct.unpack("<III", take(12))
+    frame_id = string()
+    (binary,) = struct.unpack("<B", take(1))
+    tree_id = string()
+    (resolution,) = struct.unpack("<d", take(8))
+    (n_data,) = struct.unpack("<I", take(4))
+    data = bytes(take(n_data))
+    if pos != len(view):
+        msg = f"octomap message has {len(view) - pos} bytes after its data"
+        raise InvalidInputError(msg)
+    return OctomapBlob(frame_id, secs + nsecs * 1e-9, bool(binary), tree_id, float(resolution), data)
 
 
 def map_meta_data(spec: GridSpec, stamp: object) -> MapMetaData:
