@@ -13,7 +13,7 @@ from __future__ import annotations
 import enum
 import math
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -104,10 +104,8 @@ class EstimatorStats:
 
     frames_in: int = 0
     estimates: int = 0
-
-    def __post_init__(self) -> None:
-        self.skipped: Counter[SkipReason] = Counter()
-        self.pair_rejections: Counter[PairVerdict] = Counter()
+    skipped: Counter[SkipReason] = field(default_factory=Counter)
+    pair_rejections: Counter[PairVerdict] = field(default_factory=Counter)
 
 
 class MotionStereoEstimator:
