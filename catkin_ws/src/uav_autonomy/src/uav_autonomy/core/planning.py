@@ -508,8 +508,12 @@ def search_voxels(
         j, i = divmod(rem, nx)
         voxel_path.append(grid.center(k, j, i))
     g_center = voxel_path[-1]
-    # The exact goal replaces its voxel centre when the last leg stays in free space.
-    end = goal_enu if _line_free(grid, g_center, goal_enu) else g_center
+    # The exact goal replaces its voxel centre when the last leg stays in free space; else the goal's x, y
+    # at the height of that (free) voxel, which is in the goal's column when the column has a free voxel.
+    raised = (goal_enu[0], goal_enu[1], g_center[2])
+    end = (
+        goal_enu if _line_free(grid, g_center, goal_enu) else raised if _line_free(grid, g_center, raised) else g_center
+    )
     points: list[tuple[float, float, float]] = [start_enu, *voxel_path, end]
     # Shortcut: from each kept point, jump to the farthest later point in line of sight.
     out = [points[0], points[1]] if len(points) > 1 else [points[0]]

@@ -12,6 +12,8 @@ Publishes:
     ``/autonomy/path`` (nav_msgs/Path, map, latched): start, (climb, cruise, descend | A* waypoints), goal;
     a single pose at the drone's position means "stop here" (the path ahead is blocked and no other
     path was found).
+    ``~status`` (std_msgs/String, latched): the last planning event, e.g. ``astar over the voxel map
+    (the map grew: the path ahead is blocked 31 m ahead): 5 waypoints, 48.2 ms``.
 Parameters:
     ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``planner``;
     ``~overrides`` (dict, default {}).
@@ -37,7 +39,7 @@ import rospy
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
-from std_msgs.msg import Header
+from std_msgs.msg import Header, String
 
 from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.planning import (
@@ -90,6 +92,7 @@ class PathPlannerNode:
         self._occupancy: tuple[int, VoxelOccupancy] | None = None
         self._warned_no_octomap = False
         self._failed: tuple[tuple[float, float], int] | None = None
+        self._path_source = ""
         self._stop = threading.Event()
 
     @property
@@ -98,6 +101,7 @@ class PathPlannerNode:
 
     def start(self) -> None:
         self.pub_path = rospy.Publisher("/autonomy/path", PathMsg, queue_size=1, latch=True)
+        self.pub_status = rospy.Publisher("~status", String, queue_size=5, latch=True)
         rospy.Subscriber("/map_server/layers", GridLayers, self.on_layers, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
@@ -187,6 +191,9 @@ class PathPlannerNode:
             return
         if inputs.map_version == self._checked_version:
             return
+        if self.uses_octomap and inputs.octomap is not None and self._path_source == "DEM":
+            self._plan(inputs, "the voxel map arrived")
+            return
         now = time.monotonic()
         if now - self._last_check_s < self.config.map_check_period_s:
             return
@@ -263,27 +270,30 @@ class PathPlannerNode:
                 source = "DEM"
         except (PlanningError, InvalidInputError) as err:
             self._failed = (goal, inputs.map_version)
+            text = f"no path to ({goal[0]:.1f}, {goal[1]:.1f}) ({reason}): {err}"
             if blocked:
                 # Never keep flying a path into known obstacles: stop where the drone is.
                 self._planned_goal = goal
                 if self._path is None or len(self._path) != 1:
                     self._publish(np.asarray([start], dtype=np.float64))
-                rospy.logerr_throttle(
-                    5.0,
-                    f"path_planner: no path to ({goal[0]:.1f}, {goal[1]:.1f}) ({reason}): {err}; stopped where it is",
-                )
+                text += "; stopped where it is"
+                rospy.logerr_throttle(5.0, f"path_planner: {text}")
             else:  # a new goal it cannot reach: keep the current path (the goal selector moves on)
-                rospy.logwarn_throttle(5.0, f"path_planner: no path to ({goal[0]:.1f}, {goal[1]:.1f}): {err}")
+                rospy.logwarn_throttle(5.0, f"path_planner: {text}")
+            self.pub_status.publish(String(data=text))
             return
         ms = (time.perf_counter() - t0) * 1e3
         self._planned_goal = goal
         self._failed = None
         self._checked_version = inputs.map_version
+        self._path_source = source
         self._publish(path)
-        rospy.loginfo(
-            f"path_planner: {self.config.algorithm} path over the {source}, {len(path)} waypoints to "
-            f"({goal[0]:.1f}, {goal[1]:.1f}) ({reason}), max z {path[:, 2].max():.1f} m, planned in {ms:.1f} ms"
+        text = (
+            f"{self.config.algorithm} over the {source} ({reason}): {len(path)} waypoints to "
+            f"({goal[0]:.1f}, {goal[1]:.1f}), max z {path[:, 2].max():.1f} m, {ms:.1f} ms"
         )
+        self.pub_status.publish(String(data=text))
+        rospy.loginfo(f"path_planner: {text}")
 
     def _publish(self, path: PathArray) -> None:
         self._path = path
