@@ -2,31 +2,17 @@
 
 from __future__ import annotations
 
-import math
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from synthetic_scene import SyntheticScene, default_scene, nadir_rotation
+from depth_fixtures import Rendered, flight_pose
+from synthetic_scene import SyntheticScene, default_scene
 
-from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera
-
-HEADING_RAD = 0.3
-ALTITUDE_M = 50.0
-
-
-@dataclass(frozen=True)
-class Rendered:
-    """A synthetic frame with its exact ground truth."""
-
-    frame: ColorFrame
-    depth_m: np.ndarray
-    instances: np.ndarray
+from uav_autonomy.core.depth_types import ColorFrame, PinholeCamera
 
 
 @pytest.fixture(scope="session")
@@ -38,11 +24,6 @@ def scene() -> SyntheticScene:
 def camera() -> PinholeCamera:
     """320x240, 90 deg horizontal field of view (the bridge's 640x480 default, halved)."""
     return PinholeCamera(320, 240, 160.0, 160.0, 159.5, 119.5)
-
-
-def flight_pose(along_m: float, *, altitude_m: float = ALTITUDE_M) -> CameraPose:
-    fwd = np.array([math.cos(HEADING_RAD), math.sin(HEADING_RAD), 0.0])
-    return CameraPose(nadir_rotation(HEADING_RAD), np.array([0.0, 0.0, altitude_m]) + along_m * fwd)
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import Rendered, flight_pose
+from depth_fixtures import Rendered, flight_pose
 from synthetic_scene import rotation_about
 
 from uav_autonomy.core.depth_config import EstimatorConfig, EvaluatorConfig, PoseRefineConfig

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import Rendered
+from depth_fixtures import Rendered
 from synthetic_scene import rotation_about
 
 from uav_autonomy.core.depth_config import PoseRefineConfig
