@@ -1,3 +1,4 @@
+#!/usr/bin/env python3
 # A rostest node: unittest assertions are how rosunit reports.
 """rostest node: a synthetic camera flight in, depth images, clouds, metrics and status out.
 
@@ -309,4 +310,4 @@ class TestDepthNodes(unittest.TestCase):
 
 
 if __name__ == "__main__":
-    rostest.rosrun("uav_autonomy", "depth_nodes", TestDepthNodes)
+    rostest.rosrun("uav_rostests", "depth_nodes", TestDepthNodes)
