@@ -25,15 +25,32 @@ run_tier() {
   return $rc
 }
 
+# e2e: one pytest process per file. rospy binds a process to one master for life
+# (init_node can run once), and e2e modules start their own roscore each.
+run_e2e() {
+  local start=$SECONDS rc=0 f name
+  printf '\033[1m[test] tier e2e (one process per file)\033[0m\n'
+  while IFS= read -r f; do
+    name="$(basename "$(dirname "$f")")_$(basename "$f" .py)"
+    scripts/in_env python -m pytest "$f" -p no:cacheprovider --timeout=600 \
+      --junitxml="artifacts/junit-e2e-$name.xml" "$@"
+    local frc=$?
+    [ $frc -eq 5 ] && frc=0
+    [ $frc -ne 0 ] && { rc=1; printf '\033[1;31m[test] e2e %s FAILED\033[0m\n' "$f"; }
+  done < <(find tests/e2e -name 'test_*.py' | sort)
+  printf '\033[1m[test] tier e2e: %s in %ss\033[0m\n' "$([ $rc -eq 0 ] && echo passed || echo FAILED)" "$((SECONDS - start))"
+  return $rc
+}
+
 rc=0
 case "$tier" in
   unit) run_tier unit 120 "$@" || rc=1 ;;
   ros) run_tier ros 300 "$@" || rc=1 ;;
-  e2e) run_tier e2e 600 "$@" || rc=1 ;;
+  e2e) run_e2e "$@" || rc=1 ;;
   all)
     run_tier unit 120 "$@" || rc=1
     run_tier ros 300 "$@" || rc=1
-    run_tier e2e 600 "$@" || rc=1
+    run_e2e "$@" || rc=1
     ;;
   *) echo "unknown tier '$tier' (unit, ros, e2e or all)" >&2; exit 2 ;;
 esac
