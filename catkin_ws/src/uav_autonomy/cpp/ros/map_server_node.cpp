@@ -196,10 +196,15 @@ Params readParams(const ros::NodeHandle& pnh, std::vector<std::string>& warnings
   require(p.map_publish_rate_hz >= 0.0, "map_publish_rate_hz must be >= 0");
   require(p.layers_rate_hz > 0.0, "layers/rate_hz must be > 0");
   require(p.autosave_interval_s >= 0.0, "autosave/interval_s must be >= 0");
+  require(p.layers_resolution_m >= 0.0, "layers/resolution_m must be >= 0");
   if (p.layers_resolution_m > 0.0) {
     const double f = p.layers_resolution_m / m.resolution_m;
-    require(std::fabs(f - std::round(f)) < 1e-6 && std::round(f) >= 1.0,
-            "layers/resolution_m must be a whole multiple of resolution");
+    const double whole = std::max(1.0, std::round(f));
+    if (std::fabs(f - whole) > 1e-6) {
+      warnings.push_back("~layers/resolution_m " + std::to_string(p.layers_resolution_m) +
+                         " is not a whole multiple of resolution; using " + std::to_string(whole * m.resolution_m));
+    }
+    p.layers_resolution_m = whole * m.resolution_m;
   }
   if (p.autosave_path.empty()) p.autosave_path = defaultAutosavePath(m.backend);
   return p;

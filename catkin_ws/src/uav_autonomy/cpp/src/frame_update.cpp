@@ -323,51 +323,86 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
   const double max_range = options.max_range_m;
   const auto trunc = static_cast<float>(options.truncation_m);
 
-  // Pass 1: per point, the free-space ray (if any) and the hit key (if any).
-  s.hits.clear();
+  // Pass 1 (parallel over chunks of points): per point, the free-space ray (if any) and the hit key (if any).
   s.ray_start.resize(rays_wanted ? n : 0);
   s.ray_end.resize(rays_wanted ? n : 0);
   s.has_ray.assign(rays_wanted ? n : 0, 0);
-  KeyBox ray_box;
   Key origin_key;
   const bool origin_ok = grid_.toKey(origin, origin_key);
-  for (std::size_t i = 0; i < n; ++i) {
-    const Point3& p = points.xyz[i];
-    const bool in_range = (max_range < 0.0) || ((p - origin).norm() <= max_range);
-    if (in_range) {
-      Key k;
-      if (grid_.toKey(p, k)) {
-        s.hits.push_back({mortonOf(k), static_cast<uint32_t>(i)});
+  constexpr std::size_t kChunk = 16384;
+  const std::size_t n_chunks = (n + kChunk - 1) / kChunk;
+  struct ChunkResult {
+    std::vector<MortonItem> hits;
+    KeyBox ray_box;
+    std::size_t rays = 0;
+    std::size_t out_of_map = 0;
+  };
+  std::vector<ChunkResult> chunks(n_chunks);
+  auto pass1 = [&](std::size_t chunk) {
+    ChunkResult& cr = chunks[chunk];
+    cr.hits.reserve(kChunk / 2);
+    Key last_hit_key(0, 0, 0);
+    bool last_hit_valid = false;
+    const std::size_t end_i = std::min(n, (chunk + 1) * kChunk);
+    for (std::size_t i = chunk * kChunk; i < end_i; ++i) {
+      const Point3& p = points.xyz[i];
+      const bool in_range = (max_range < 0.0) || ((p - origin).norm() <= max_range);
+      if (in_range) {
+        Key k;
+        if (grid_.toKey(p, k)) {
+          // Neighbouring pixels mostly share a voxel: extend the current run instead of sorting every point.
+          if (last_hit_valid && k == last_hit_key && cr.hits.back().index + cr.hits.back().count == i) {
+            ++cr.hits.back().count;
+          } else {
+            cr.hits.push_back({mortonOf(k), static_cast<uint32_t>(i), 1});
+            last_hit_key = k;
+            last_hit_valid = true;
+          }
+        } else {
+          ++cr.out_of_map;
+        }
+      }
+      if (!rays_wanted) continue;
+      Point3 start = origin;
+      Point3 end = p;
+      if (options.mode == InsertMode::kFull) {
+        if (!in_range) {
+          const Point3 direction = (p - origin).normalized();
+          end = origin + direction * static_cast<float>(max_range);
+        }
+      } else {  // truncated: only the last `trunc` metres before a hit
+        if (!in_range) continue;
+        const Point3 d = p - origin;
+        const double dist = d.norm();
+        if (dist > trunc) start = p - d * static_cast<float>(trunc / dist);
+      }
+      Key ks;
+      Key ke;
+      if ((options.mode == InsertMode::kFull ? origin_ok : grid_.toKey(start, ks)) && grid_.toKey(end, ke)) {
+        s.ray_start[i] = start;
+        s.ray_end[i] = end;
+        s.has_ray[i] = 1;
+        cr.ray_box.add(options.mode == InsertMode::kFull ? origin_key : ks);
+        cr.ray_box.add(ke);
+        ++cr.rays;
       } else {
-        ++out.points_out_of_map;
+        ++cr.out_of_map;
       }
     }
-    if (!rays_wanted) continue;
-    Point3 start = origin;
-    Point3 end = p;
-    if (options.mode == InsertMode::kFull) {
-      if (!in_range) {
-        const Point3 direction = (p - origin).normalized();
-        end = origin + direction * static_cast<float>(max_range);
-      }
-    } else {  // truncated: only the last `trunc` metres before a hit
-      if (!in_range) continue;
-      const Point3 d = p - origin;
-      const double dist = d.norm();
-      if (dist > trunc) start = p - d * static_cast<float>(trunc / dist);
-    }
-    Key ks;
-    Key ke;
-    if ((options.mode == InsertMode::kFull ? origin_ok : grid_.toKey(start, ks)) && grid_.toKey(end, ke)) {
-      s.ray_start[i] = start;
-      s.ray_end[i] = end;
-      s.has_ray[i] = 1;
-      ray_box.add(options.mode == InsertMode::kFull ? origin_key : ks);
-      ray_box.add(ke);
-      ++out.rays;
-    } else {
-      ++out.points_out_of_map;
-    }
+  };
+  tbb::task_arena arena(std::max(1, options.threads));
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_chunks, 1), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t c = r.begin(); c < r.end(); ++c) pass1(c);
+    });
+  });
+  s.hits.clear();
+  KeyBox ray_box;
+  for (const ChunkResult& cr : chunks) {
+    s.hits.insert(s.hits.end(), cr.hits.begin(), cr.hits.end());
+    ray_box.merge(cr.ray_box);
+    out.rays += cr.rays;
+    out.points_out_of_map += cr.out_of_map;
   }
 
   // Hits: sort by voxel, average colours.
@@ -377,20 +412,24 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
   for (std::size_t a = 0; a < s.hits.size();) {
     std::size_t b = a;
     uint32_t sum[3] = {0, 0, 0};
+    uint32_t count = 0;
     while (b < s.hits.size() && s.hits[b].morton == s.hits[a].morton) {
       if (color) {
-        const auto& c = points.rgb[s.hits[b].index];
-        sum[0] += c[0];
-        sum[1] += c[1];
-        sum[2] += c[2];
+        for (uint32_t j = s.hits[b].index; j < s.hits[b].index + s.hits[b].count; ++j) {
+          const auto& c = points.rgb[j];
+          sum[0] += c[0];
+          sum[1] += c[1];
+          sum[2] += c[2];
+        }
       }
+      count += s.hits[b].count;
       ++b;
     }
     VoxelUpdate u{};
     u.morton = s.hits[a].morton;
     u.hit = 1;
     if (color) {
-      const auto m = meanColor(sum, static_cast<uint32_t>(b - a));
+      const auto m = meanColor(sum, count);
       u.has_color = 1;
       u.r = m[0];
       u.g = m[1];
@@ -410,7 +449,6 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
       padded.min[i] = std::max(0, padded.min[i] - 1);
       padded.max[i] = std::min(2 * kKeyOffset - 1, padded.max[i] + 1);
     }
-    tbb::task_arena arena(std::max(1, options.threads));
     tbb::enumerable_thread_specific<std::vector<uint64_t>> spill;
     const bool dense = ByteMap::bytesFor(padded) <= max_byte_map_bytes_;
     out.used_byte_map = dense;
@@ -431,7 +469,7 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
     });
     std::vector<MortonItem> spilled;
     for (auto& v : spill) {
-      for (uint64_t m : v) spilled.push_back({m, 0});
+      for (uint64_t m : v) spilled.push_back({m, 0, 1});
     }
     if (dense) {
       for (const VoxelUpdate& h : hit_updates) {  // occupied endpoints win over free cells

@@ -8,7 +8,10 @@
 #include <iterator>
 #include <iomanip>
 #include <limits>
+#include <cstdlib>
 #include <memory>
+#include <mutex>
+#include <new>
 #include <sstream>
 
 namespace uav_mapping {
@@ -164,6 +167,66 @@ void writeFileAtomically(const std::string& path, const std::string& bytes) {
     }
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) throw MapIoError(path + ": rename failed: " + std::strerror(errno));
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Node pool
+
+namespace {
+
+/// Fixed-size slots carved from 1.5 MB blocks, recycled through a free list. Blocks are kept for the
+/// process's lifetime (a reset map reuses them). Thread-safe.
+class NodePool {
+ public:
+  static NodePool& instance() {
+    static NodePool* pool = new NodePool();  // never destroyed: nodes may outlive static destruction order
+    return *pool;
+  }
+  void* allocate() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (free_ == nullptr) grow();
+    Slot* s = free_;
+    free_ = s->next;
+    return s;
+  }
+  void release(void* p) noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto* s = static_cast<Slot*>(p);
+    s->next = free_;
+    free_ = s;
+  }
+
+ private:
+  union Slot {
+    Slot* next;
+    alignas(UavOcTreeNode) unsigned char bytes[sizeof(UavOcTreeNode)];
+  };
+  static constexpr std::size_t kSlotsPerBlock = 65536;
+  void grow() {
+    auto* block = static_cast<Slot*>(std::malloc(sizeof(Slot) * kSlotsPerBlock));
+    if (block == nullptr) throw std::bad_alloc();
+    for (std::size_t i = 0; i + 1 < kSlotsPerBlock; ++i) block[i].next = &block[i + 1];
+    block[kSlotsPerBlock - 1].next = nullptr;
+    free_ = block;
+  }
+  std::mutex mutex_;
+  Slot* free_ = nullptr;
+};
+
+}  // namespace
+
+void* UavOcTreeNode::operator new(std::size_t size) {
+  if (size != sizeof(UavOcTreeNode)) return ::operator new(size);  // a derived type: not ours to pool
+  return NodePool::instance().allocate();
+}
+
+void UavOcTreeNode::operator delete(void* p, std::size_t size) noexcept {
+  if (p == nullptr) return;
+  if (size != sizeof(UavOcTreeNode)) {
+    ::operator delete(p);
+    return;
+  }
+  NodePool::instance().release(p);
 }
 
 // ---------------------------------------------------------------------------------------------------------

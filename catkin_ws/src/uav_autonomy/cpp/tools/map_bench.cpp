@@ -9,6 +9,11 @@
 //       Time of the whole Mapper::insert (transform, filters, PCL voxel grid, insertion).
 //   map_bench coverage --res 0.5 --backend octomap --mode surface --side 1000 [--spacing 20] [--row 80]
 //       Lawnmower over a side x side square at 50 m AGL; map memory and process RSS at the end.
+//
+// Frames come from the built-in synthetic world unless --frames FILE (or --frames - for stdin) gives rendered
+// ones in the stream format below (bench/bench_map.py writes it from the sim bridge's renderer):
+//   "UAVFRAMES1\n", then per frame: float64 origin[3], float64 stamp_s, uint64 n, float32 xyz[n][3] (map frame),
+//   uint8 rgb[n][3]; a frame with n = 2^64 - 1 ends the stream.
 #include "synthetic_world.h"
 
 #include <uav_mapping/mapper.h>
@@ -87,6 +92,50 @@ struct Frame {
   double stamp_s;
 };
 
+/// Reads frames in the stream format (see the header comment); false at the end of the stream.
+class FrameStream {
+ public:
+  explicit FrameStream(const std::string& path) {
+    if (path == "-") {
+      in_ = &std::cin;
+    } else {
+      file_.open(path, std::ios::binary);
+      if (!file_) throw std::runtime_error("cannot open " + path);
+      in_ = &file_;
+    }
+    std::string magic;
+    std::getline(*in_, magic);
+    if (magic != "UAVFRAMES1") throw std::runtime_error("not a frame stream: " + path);
+  }
+  bool next(Frame& f) {
+    double head[4];
+    uint64_t n = 0;
+    if (!in_->read(reinterpret_cast<char*>(head), sizeof(head)) || !in_->read(reinterpret_cast<char*>(&n), 8))
+      return false;
+    if (n == ~0ULL) return false;
+    if (n > 100000000ULL) throw std::runtime_error("frame stream: absurd point count");
+    std::vector<float> xyz(3 * n);
+    std::vector<uint8_t> rgb(3 * n);
+    if (!in_->read(reinterpret_cast<char*>(xyz.data()), static_cast<std::streamsize>(xyz.size() * 4)) ||
+        !in_->read(reinterpret_cast<char*>(rgb.data()), static_cast<std::streamsize>(rgb.size())))
+      throw std::runtime_error("frame stream truncated");
+    f.map_points.clear();
+    f.map_points.xyz.reserve(n);
+    f.map_points.rgb.reserve(n);
+    for (uint64_t i = 0; i < n; ++i) {
+      f.map_points.xyz.emplace_back(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+      f.map_points.rgb.push_back({rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]});
+    }
+    f.origin = Point3(static_cast<float>(head[0]), static_cast<float>(head[1]), static_cast<float>(head[2]));
+    f.stamp_s = head[3];
+    return true;
+  }
+
+ private:
+  std::ifstream file_;
+  std::istream* in_ = nullptr;
+};
+
 std::vector<Frame> makeFrames(const synthetic::World& world, int count, double spacing_m, double agl_m, int threads) {
   std::vector<Frame> frames;
   synthetic::Camera cam;
@@ -156,13 +205,22 @@ int runFrames(const std::map<std::string, std::string>& a) {
   const double max_range = std::stod(arg(a, "max-range", "-1"));
   const bool stock = arg(a, "stock", "1") == "1";
   const double truncation = std::stod(arg(a, "truncation", "3"));
-  synthetic::World world{synthetic::WorldOptions()};
-  const auto frames = makeFrames(world, n_frames, spacing, agl, threads);
+  std::vector<Frame> frames;
+  std::string source = "synthetic heightfield (tools/synthetic_world.cpp)";
+  if (a.count("frames-file")) {
+    FrameStream stream(a.at("frames-file"));
+    Frame f;
+    while (static_cast<int>(frames.size()) < n_frames && stream.next(f)) frames.push_back(f);
+    source = "rendered frames from " + a.at("frames-file");
+  } else {
+    synthetic::World world{synthetic::WorldOptions()};
+    frames = makeFrames(world, n_frames, spacing, agl, threads);
+  }
   std::size_t points = 0;
   for (const auto& f : frames) points += f.map_points.size();
-  std::cout << "{\"kind\": \"frames\", \"res_m\": " << res << ", \"frames\": " << n_frames
-            << ", \"points_per_frame\": " << points / std::max<std::size_t>(1, frames.size())
-            << ", \"source\": \"synthetic heightfield (tools/synthetic_world.cpp)\"}" << std::endl;
+  std::cout << "{\"kind\": \"frames\", \"res_m\": " << res << ", \"frames\": " << frames.size()
+            << ", \"points_per_frame\": " << points / std::max<std::size_t>(1, frames.size()) << ", \"source\": \""
+            << source << "\"}" << std::endl;
 
   std::unique_ptr<octomap::OcTree> stock_tree;
   if (stock) {
@@ -263,7 +321,7 @@ int runCoverage(const std::map<std::string, std::string>& a) {
   const double row = std::stod(arg(a, "row", "80"));
   const int threads = std::stoi(arg(a, "threads", "2"));
   synthetic::WorldOptions wo;
-  wo.half_size_m = 0.5 * side + 60.0;
+  wo.half_size_m = a.count("frames-file") ? 10.0 : 0.5 * side + 60.0;  // unused with rendered frames
   synthetic::World world(wo);
   synthetic::Camera cam;
   MapperConfig cfg;
@@ -276,8 +334,16 @@ int runCoverage(const std::map<std::string, std::string>& a) {
   Mapper mapper(cfg);
   std::vector<double> ms;
   int frame = 0;
-  const int rows = static_cast<int>(std::ceil(side / row));
+  const int rows = a.count("frames-file") ? 0 : static_cast<int>(std::ceil(side / row));
   const auto t_start = Clock::now();
+  if (a.count("frames-file")) {
+    FrameStream stream(a.at("frames-file"));
+    Frame f;
+    while (stream.next(f)) {
+      ms.push_back(mapper.insertMapPoints(f.map_points, f.origin, f.stamp_s).total_ms);
+      ++frame;
+    }
+  }
   for (int r = 0; r < rows; ++r) {
     const double y = -0.5 * side + (r + 0.5) * row;
     const int cols = static_cast<int>(std::ceil(side / spacing)) + 1;
@@ -293,13 +359,23 @@ int runCoverage(const std::map<std::string, std::string>& a) {
   const LayersSnapshot layers = mapper.layers();
   std::size_t observed = 0;
   for (float o : layers.observed) observed += o > 0.0f;
+  KeyBox box;
+  mapper.map().forEachLeaf(
+      [&box](const Leaf& l) {
+        box.add(l.key);
+        box.add(Key(static_cast<uint16_t>(l.key[0] + l.size - 1), static_cast<uint16_t>(l.key[1] + l.size - 1),
+                    static_cast<uint16_t>(l.key[2] + l.size - 1)));
+      },
+      false);
+  const double dense_bytes = static_cast<double>(box.volume()) * sizeof(float);  // OctoMap's memoryFullGrid
   std::cout << "{\"kind\": \"coverage\", \"backend\": \"" << arg(a, "backend", "octomap") << "\", \"mode\": \""
             << arg(a, "mode", "surface") << "\", \"res_m\": " << res << ", \"side_m\": " << side
             << ", \"frames\": " << frame << ", \"median_ms\": " << median(ms)
             << ", \"observed_area_m2\": " << observed * res * res << ", \"memory_bytes\": " << mapper.map().memoryBytes()
             << ", \"layers_bytes\": " << mapper.columnLayers().memoryBytes() << ", \"leaves\": " << mapper.map().leafCount()
             << ", \"rss_delta_bytes\": " << static_cast<long long>(rssBytes()) - static_cast<long long>(rss0)
-            << ", \"wall_s\": " << msSince(t_start) / 1000.0 << "}" << std::endl;
+            << ", \"dense_grid_bytes\": " << dense_bytes << ", \"wall_s\": " << msSince(t_start) / 1000.0 << "}"
+            << std::endl;
   return 0;
 }
 

@@ -97,7 +97,8 @@ class FrameUpdateBuilder {
 /// Sorts (morton, payload) pairs by morton with an LSD radix sort (skips digits that are constant).
 struct MortonItem {
   uint64_t morton;
-  uint32_t index;
+  uint32_t index;  // first point of a run of consecutive points in the same voxel
+  uint32_t count;  // points in the run
 };
 void radixSortByMorton(std::vector<MortonItem>& items, std::vector<MortonItem>& scratch);
 

@@ -11,6 +11,7 @@
 #include <octomap/ColorOcTree.h>
 #include <octomap/OccupancyOcTreeBase.h>
 
+#include <cstddef>
 #include <iosfwd>
 #include <string>
 #include <vector>
@@ -20,6 +21,11 @@ namespace uav_mapping {
 class UavOcTreeNode : public octomap::ColorOcTreeNode {
  public:
   enum Flags : uint8_t { kColorSet = 1 };
+
+  // OctoMap allocates every node with `new NODE()` and frees it as NODE*; nodes come from a pool of exact-size
+  // slots instead of malloc, which saves malloc's per-allocation overhead (24-byte nodes in 32-byte chunks).
+  static void* operator new(std::size_t size);
+  static void operator delete(void* p, std::size_t size) noexcept;
 
   UavOcTreeNode() : ColorOcTreeNode() {}
   UavOcTreeNode(const UavOcTreeNode& rhs) = delete;  // OctoMap's deep copy would slice the node type

@@ -1,0 +1,193 @@
+"""Map server benchmark (issue 6): insertion time per frame and memory, per mode and backend.
+
+Setup: 640 x 480, 90 deg nadir frames rendered by the sim bridge's renderer (``uav_sim_bridge.render``) of the
+default world (``config/worlds/default.yaml``), 50 m above the ground, at 0.25, 0.5 and 1.0 m resolution. The
+C++ driver ``map_bench`` (built with the node) inserts the same frames with every backend and insertion mode, and
+with stock ``OcTree::insertPointCloud`` (what octomap_server uses) as the baseline in the same process, and checks
+that full ray clearing leaves exactly stock's occupied and free voxels (same log-odds).
+
+Then a lawnmower over the whole 1 km x 1 km default world at 0.5 m measures the memory of a 1 km^2 map.
+
+    python bench/bench_map.py            # everything (a few minutes on 2 cores)
+    python bench/bench_map.py --quick    # fewer frames, no 1 km^2 coverage
+
+Targets: surface mode <= 20 ms per frame at 0.5 m; full ray clearing >= 2x faster than stock with identical
+occupied and free keys; a 1 km^2 map at 0.5 m < 1 GB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from benchlib import record
+
+from uav_sim_bridge.core.camera import CameraModel, depth_to_points, look_at
+from uav_sim_bridge.core.world import World, load_or_generate
+from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.render import Renderer
+
+REPO = Path(__file__).resolve().parents[1]
+BINARY = REPO / "catkin_ws" / "devel" / "lib" / "uav_autonomy" / "map_bench"
+WORLD = REPO / "config" / "worlds" / "default.yaml"
+CACHE = Path("~/.cache/uav_test_range/worlds").expanduser()
+AGL_M = 50.0
+END_OF_STREAM = 2**64 - 1
+
+
+def frame_poses_line(world: World, n: int, spacing_m: float) -> list[tuple[float, float, float]]:
+    """Nadir eye positions 50 m above the ground along an east-west line over the village east of home."""
+    xs = 60.0 + spacing_m * np.arange(n)
+    return [(float(x), 60.0, float(world.height_at(np.array([x]), np.array([60.0]))[0]) + AGL_M) for x in xs]
+
+
+def frame_poses_lawnmower(world: World, spacing_m: float, row_m: float) -> list[tuple[float, float, float]]:
+    """Boustrophedon rows over the whole world (east-west rows, the image's 100 m side along the track)."""
+    half = 0.5 * world.config.terrain.size_m
+    rows = np.arange(-half + 0.5 * row_m, half, row_m)
+    cols = np.arange(-half, half + 1e-6, spacing_m)
+    poses = []
+    for r, y in enumerate(rows):
+        for x in cols if r % 2 == 0 else cols[::-1]:
+            z = float(world.height_at(np.array([x]), np.array([y]))[0]) + AGL_M
+            poses.append((float(x), float(y), z))
+    return poses
+
+
+def render_stream(world: World, poses: Iterable[tuple[float, float, float]]) -> Iterator[bytes]:
+    """The frames in map_bench's stream format: origin, stamp, n, xyz (map frame, float32), rgb (uint8)."""
+    renderer = Renderer(world)
+    cam = CameraModel.simple(640, 480, 90.0, name="nadir")
+    yield b"UAVFRAMES1\n"
+    for i, (x, y, z) in enumerate(poses):
+        t_map_optical = look_at([x, y, z], [x, y, z - AGL_M])
+        frame = renderer.render(cam, t_map_optical)
+        pts = depth_to_points(frame.depth_m, cam.k).reshape(-1, 3)
+        ok = np.all(np.isfinite(pts), axis=1)
+        xyz = t_map_optical.apply(pts[ok]).astype(np.float32)
+        rgb = frame.color_rgb.reshape(-1, 3)[ok].astype(np.uint8)
+        yield struct.pack("<4dQ", x, y, z, 10.0 + 0.5 * i, len(xyz)) + xyz.tobytes() + rgb.tobytes()
+    yield struct.pack("<4dQ", 0.0, 0.0, 0.0, 0.0, END_OF_STREAM)
+
+
+def write_stream(path: Path, chunks: Iterable[bytes]) -> int:
+    n = 0
+    with path.open("wb") as fh:
+        for chunk in chunks:
+            fh.write(chunk)
+            n += 1
+    return n - 2
+
+
+def run_bench(args: list[str]) -> list[dict[str, Any]]:
+    proc = subprocess.run([str(BINARY), *args], capture_output=True, text=True, check=False, timeout=3600)
+    if proc.returncode != 0:
+        msg = f"map_bench {' '.join(args)} failed ({proc.returncode}): {proc.stderr[-2000:]}"
+        raise RuntimeError(msg)
+    return [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+
+
+def frames_benchmark(frames_file: Path, counts: dict[float, int]) -> None:
+    for res, n in counts.items():
+        rows = run_bench(["frames", "--res", str(res), "--frames", str(n), "--frames-file", str(frames_file)])
+        info = rows[0]
+        runs = [r for r in rows if r["kind"] == "run"]
+        stock = next(r for r in runs if r["impl"] == "stock")
+        stock_ms = float(stock["median_ms"])
+        tag = f"{res:g}m"
+        source = f"{info['frames']} rendered frames of the default world, {info['points_per_frame']} points each"
+        record(
+            f"map.{tag}.stock_octree.full",
+            stock_ms,
+            "ms/frame",
+            stock_ms,
+            notes=f"OcTree::insertPointCloud (octomap_server's insertion), {source}; "
+            f"memory {stock['memory_bytes'] / 2**20:.1f} MiB",
+        )
+        for r in runs:
+            if r["impl"] == "stock":
+                continue
+            name = f"map.{tag}.{r['backend']}.{r['mode']}"
+            ms = float(r["median_ms"])
+            notes = (
+                f"raycast {r['median_raycast_ms']:.1f} + update {r['median_update_ms']:.1f} + layers "
+                f"{r['median_layers_ms']:.1f} ms; map {r['memory_bytes'] / 2**20:.1f} MiB; {r['threads']} threads; "
+                f"{source}"
+            )
+            target = ""
+            met = None
+            if r["mode"] == "full":
+                identical = bool(r.get("identical_to_stock"))
+                notes += (
+                    f"; identical occupied+free voxels and log-odds to stock: {identical} "
+                    f"({r['stock_occupied']} occupied + {r['stock_free']} free voxels, {r['mismatches']} mismatches)"
+                )
+                if res == 0.5:
+                    target = "<= 0.5 x stock, identical keys"
+                    met = ms <= 0.5 * stock_ms and identical
+                record(f"{name}.identical_to_stock", 1.0 if identical else 0.0, "bool", 1.0, target="1", met=identical)
+            if r["mode"] == "surface" and res == 0.5:
+                target = "<= 20 ms"
+                met = ms <= 20.0
+            record(name, ms, "ms/frame", stock_ms, target=target, met=met, notes=notes)
+
+
+def coverage_benchmark(frames_file: Path, n_frames: int, configs: list[tuple[str, str]]) -> None:
+    for backend, mode in configs:
+        (row,) = run_bench(
+            ["coverage", "--res", "0.5", "--backend", backend, "--mode", mode, "--frames-file", str(frames_file)]
+        )
+        mem_mb = row["memory_bytes"] / 2**20
+        rss_mb = row["rss_delta_bytes"] / 2**20
+        dense_mb = row["dense_grid_bytes"] / 2**20
+        record(
+            f"map.1km2_0.5m.{backend}.{mode}.memory",
+            mem_mb,
+            "MiB",
+            dense_mb,
+            target="< 1024 MiB",
+            met=max(mem_mb, rss_mb) < 1024.0,
+            notes=f"lawnmower over the 1 km^2 default world, {row['frames']} rendered nadir frames at 50 m AGL; "
+            f"observed {row['observed_area_m2'] / 1e6:.3f} km^2; map's own estimate {mem_mb:.0f} MiB, process RSS "
+            f"growth {rss_mb:.0f} MiB, 2D layers {row['layers_bytes'] / 2**20:.0f} MiB, {row['leaves']} leaves; "
+            f"median {row['median_ms']:.1f} ms/frame; baseline = a dense float grid over the map's box",
+        )
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer frames, no 1 km^2 coverage")
+    args = parser.parse_args(argv)
+    if not BINARY.exists():
+        print(f"{BINARY} is missing: run make build", file=sys.stderr)
+        return 1
+    world = load_or_generate(load_world_config(WORLD), CACHE)
+    with tempfile.TemporaryDirectory(prefix="bench_map_") as tmp:
+        line = Path(tmp) / "line.frames"
+        t0 = time.monotonic()
+        n = write_stream(line, render_stream(world, frame_poses_line(world, 5, 20.0)))
+        print(f"rendered {n} frames of the default world in {time.monotonic() - t0:.1f} s", flush=True)
+        counts = {1.0: 3, 0.5: 3, 0.25: 2} if args.quick else {1.0: 5, 0.5: 5, 0.25: 3}
+        frames_benchmark(line, counts)
+        if args.quick:
+            return 0
+        cover = Path(tmp) / "cover.frames"
+        t0 = time.monotonic()
+        n = write_stream(cover, render_stream(world, frame_poses_lawnmower(world, 50.0, 60.0)))
+        print(f"rendered {n} lawnmower frames in {time.monotonic() - t0:.1f} s", flush=True)
+        configs = [("octomap", "truncated"), ("octomap", "surface"), ("openvdb", "truncated"), ("openvdb", "surface")]
+        coverage_benchmark(cover, n, configs)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
