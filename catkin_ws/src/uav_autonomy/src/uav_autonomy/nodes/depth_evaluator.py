@@ -204,12 +204,18 @@ class DepthEvaluatorNode:
             rospy.logwarn_throttle(5.0, f"depth_evaluator: estimate skipped: {err}")
             return
         stamp_diff_s = abs(header.stamp.to_nsec() - truth_stamp_ns) * 1e-9
-        self.pub.publish(metrics_msg(evaluation, header, self.camera_name, self.config, stamp_diff_s))
         self.evaluated += 1
+        # The run log first: a frame evaluated while the node shuts down is still kept.
         if self.run_log is not None:
             self.run_log.add(header.stamp.to_sec(), stamp_diff_s, evaluation)
             if self.evaluated % _SUMMARY_EVERY == 0:
                 self.run_log.write_summary(self._counters())
+        try:
+            self.pub.publish(metrics_msg(evaluation, header, self.camera_name, self.config, stamp_diff_s))
+        except rospy.ROSException:
+            if not rospy.is_shutdown():
+                raise
+            # rospy closed the topic under this callback during shutdown; the run log has the frame.
 
     def _counters(self) -> dict[str, int]:
         return {"dropped_no_truth": self.dropped_no_truth, "bad_input": self.bad_input}
