@@ -41,6 +41,7 @@ BINARY = REPO / "catkin_ws" / "devel" / "lib" / "uav_autonomy" / "map_bench"
 WORLD = REPO / "config" / "worlds" / "default.yaml"
 CACHE = Path("~/.cache/uav_test_range/worlds").expanduser()
 AGL_M = 50.0
+TRUNCATION_M = "1.0"  # config/map_server.yaml's truncation_m
 END_OF_STREAM = 2**64 - 1
 
 
@@ -88,7 +89,11 @@ def write_stream(path: Path, chunks: Iterable[bytes]) -> int:
     return n - 2
 
 
-def run_bench(args: list[str]) -> list[dict[str, Any]]:
+def run_bench(command: str, frames_file: Path, **options: object) -> list[dict[str, Any]]:
+    """Runs ``map_bench COMMAND --frames-file F --key value ...``; returns its JSON lines."""
+    args = [command, "--frames-file", str(frames_file), "--truncation", TRUNCATION_M]
+    for key, value in options.items():
+        args += [f"--{key}", str(value)]
     proc = subprocess.run([str(BINARY), *args], capture_output=True, text=True, check=False, timeout=3600)
     if proc.returncode != 0:
         msg = f"map_bench {' '.join(args)} failed ({proc.returncode}): {proc.stderr[-2000:]}"
@@ -98,7 +103,7 @@ def run_bench(args: list[str]) -> list[dict[str, Any]]:
 
 def frames_benchmark(frames_file: Path, counts: dict[float, int]) -> None:
     for res, n in counts.items():
-        rows = run_bench(["frames", "--res", str(res), "--frames", str(n), "--frames-file", str(frames_file)])
+        rows = run_bench("frames", frames_file, res=res, frames=n)
         info = rows[0]
         runs = [r for r in rows if r["kind"] == "run"]
         stock = next(r for r in runs if r["impl"] == "stock")
@@ -141,16 +146,30 @@ def frames_benchmark(frames_file: Path, counts: dict[float, int]) -> None:
             record(name, ms, "ms/frame", stock_ms, target=target, met=met, notes=notes)
 
 
-def coverage_benchmark(frames_file: Path, n_frames: int, configs: list[tuple[str, str]]) -> None:
+def pipeline_benchmark(frames_file: Path, n: int) -> None:
+    """What the node spends per frame with its default settings: filters + PCL voxel grid (0.5 m) + insertion."""
+    for backend in ("octomap", "openvdb"):
+        for mode, leaf in (("truncated", "0.5"), ("surface", "0.5"), ("full", "0.5")):
+            (row,) = run_bench("pipeline", frames_file, res=0.5, frames=n, backend=backend, mode=mode, leaf=leaf)
+            record(
+                f"map.0.5m.{backend}.{mode}.node_pipeline",
+                float(row["median_total_ms"]),
+                "ms/frame",
+                float(row["median_insert_ms"]),
+                notes=f"transform + filters + PCL VoxelGrid {leaf} m ({row['median_filter_ms']:.1f} ms) + insertion; "
+                f"{row['points_in_per_frame']} -> {row['points_inserted_per_frame']} points; baseline = the insertion "
+                "alone after the voxel grid",
+            )
+
+
+def coverage_benchmark(frames_file: Path, configs: list[tuple[str, str]]) -> None:
     for backend, mode in configs:
-        (row,) = run_bench(
-            ["coverage", "--res", "0.5", "--backend", backend, "--mode", mode, "--frames-file", str(frames_file)]
-        )
+        (row,) = run_bench("coverage", frames_file, res=0.5, backend=backend, mode=mode)
         mem_mb = row["memory_bytes"] / 2**20
         rss_mb = row["rss_delta_bytes"] / 2**20
         dense_mb = row["dense_grid_bytes"] / 2**20
         record(
-            f"map.1km2_0.5m.{backend}.{mode}.memory",
+            f"map.1km2_0.5m.{backend}.{mode}.memory",  # truncated: truncation_m = TRUNCATION_M
             mem_mb,
             "MiB",
             dense_mb,
@@ -178,6 +197,7 @@ def main(argv: list[str]) -> int:
         print(f"rendered {n} frames of the default world in {time.monotonic() - t0:.1f} s", flush=True)
         counts = {1.0: 3, 0.5: 3, 0.25: 2} if args.quick else {1.0: 5, 0.5: 5, 0.25: 3}
         frames_benchmark(line, counts)
+        pipeline_benchmark(line, counts[0.5])
         if args.quick:
             return 0
         cover = Path(tmp) / "cover.frames"
@@ -185,7 +205,7 @@ def main(argv: list[str]) -> int:
         n = write_stream(cover, render_stream(world, frame_poses_lawnmower(world, 50.0, 60.0)))
         print(f"rendered {n} lawnmower frames in {time.monotonic() - t0:.1f} s", flush=True)
         configs = [("octomap", "truncated"), ("octomap", "surface"), ("openvdb", "truncated"), ("openvdb", "surface")]
-        coverage_benchmark(cover, n, configs)
+        coverage_benchmark(cover, configs)
     return 0
 
 

@@ -10,8 +10,9 @@
 //              ~save, ~load (uav_msgs/MapFile), ~export_occupied (uav_msgs/ExportVoxels)
 // Parameters   see docs/map_server.md and config/map_server.yaml (unknown private parameters are errors)
 //
-// Threads: ROS callbacks (services, timers, the cloud queue) run in the main thread; clouds are inserted by a
-// worker thread, so a slow insertion never stalls services, and a full queue is counted, not silently lost.
+// Threads: services and timers run in the main thread; incoming clouds are queued by their own spinner thread
+// and inserted by a worker thread, so a slow insertion or a slow publish never stalls the others, and a full
+// queue is counted, not silently lost.
 #include "ros_conversions.h"
 
 #include <uav_mapping/mapper.h>
@@ -19,6 +20,7 @@
 
 #include <octomap_msgs/BoundingBoxQuery.h>
 #include <octomap_msgs/GetOctomap.h>
+#include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <std_srvs/Empty.h>
 #include <tf2_ros/buffer.h>
@@ -244,13 +246,22 @@ class MapServerNode {
       timer_autosave_ =
           nh_.createWallTimer(ros::WallDuration(p_.autosave_interval_s), &MapServerNode::onAutosaveTimer, this);
     worker_ = std::thread(&MapServerNode::workerLoop, this);
-    sub_cloud_ = nh_.subscribe("cloud_in", 2, &MapServerNode::onCloud, this);
+    // Clouds have their own callback queue and spinner thread: queueing a cloud never waits behind a timer or a
+    // service of the main thread (e.g. building markers of a large map), so drops are counted, not silent.
+    ros::SubscribeOptions opts = ros::SubscribeOptions::create<sensor_msgs::PointCloud2>(
+        "cloud_in", 2, boost::bind(&MapServerNode::onCloud, this, boost::placeholders::_1), ros::VoidPtr(),
+        &cloud_queue_);
+    sub_cloud_ = nh_.subscribe(opts);
+    cloud_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &cloud_queue_);
+    cloud_spinner_->start();
     ROS_INFO_STREAM("map_server: backend " << toString(p_.mapper.backend) << ", " << p_.mapper.resolution_m
                                            << " m, insert_mode " << toString(p_.mapper.mode) << ", cloud_in "
                                            << sub_cloud_.getTopic() << " -> frame " << p_.frame_id);
   }
 
   ~MapServerNode() {
+    if (cloud_spinner_) cloud_spinner_->stop();
+    sub_cloud_.shutdown();
     {
       std::lock_guard<std::mutex> lock(queue_mutex_);
       stop_ = true;
@@ -474,8 +485,13 @@ class MapServerNode {
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
       map_changed_ = false;
-      map_leaves_ = mapper_.map().leafCount();
-      map_memory_ = mapper_.map().memoryBytes();
+      // Counting leaves walks the whole map: refresh these statistics at most every few seconds.
+      const auto now = std::chrono::steady_clock::now();
+      if (msBetween(size_stats_at_, now) > 5000.0) {
+        map_leaves_ = mapper_.map().leafCount();
+        map_memory_ = mapper_.map().memoryBytes();
+        size_stats_at_ = now;
+      }
       if (want_binary || want_full) {
         std::unique_ptr<UavOcTree> converted;
         const UavOcTree& tree = octreeFor(converted);
@@ -703,7 +719,10 @@ class MapServerNode {
   std::map<std::string, std::chrono::steady_clock::time_point> last_warn_;
   std::atomic<uint64_t> map_leaves_{0};
   std::atomic<uint64_t> map_memory_{0};
+  std::chrono::steady_clock::time_point size_stats_at_{};
 
+  ros::CallbackQueue cloud_queue_;
+  std::unique_ptr<ros::AsyncSpinner> cloud_spinner_;
   ros::Subscriber sub_cloud_;
   ros::Publisher pub_binary_, pub_full_, pub_markers_, pub_projected_, pub_centers_, pub_layers_, pub_stats_;
   ros::ServiceServer srv_binary_, srv_full_, srv_reset_, srv_clear_, srv_layers_, srv_save_, srv_load_, srv_export_;

@@ -174,12 +174,13 @@ void writeFileAtomically(const std::string& path, const std::string& bytes) {
 
 namespace {
 
-/// Fixed-size slots carved from 1.5 MB blocks, recycled through a free list. Blocks are kept for the
+/// Fixed-size slots carved from blocks of 65536, recycled through a free list. Blocks are kept for the
 /// process's lifetime (a reset map reuses them). Thread-safe.
-class NodePool {
+template <std::size_t kSize, std::size_t kAlign>
+class SlotPool {
  public:
-  static NodePool& instance() {
-    static NodePool* pool = new NodePool();  // never destroyed: nodes may outlive static destruction order
+  static SlotPool& instance() {
+    static SlotPool* pool = new SlotPool();  // never destroyed: trees may outlive static destruction order
     return *pool;
   }
   void* allocate() {
@@ -199,7 +200,7 @@ class NodePool {
  private:
   union Slot {
     Slot* next;
-    alignas(UavOcTreeNode) unsigned char bytes[sizeof(UavOcTreeNode)];
+    alignas(kAlign) unsigned char bytes[kSize];
   };
   static constexpr std::size_t kSlotsPerBlock = 65536;
   void grow() {
@@ -212,6 +213,9 @@ class NodePool {
   std::mutex mutex_;
   Slot* free_ = nullptr;
 };
+
+using NodePool = SlotPool<sizeof(UavOcTreeNode), alignof(UavOcTreeNode)>;
+using ChildArrayPool = SlotPool<8 * sizeof(octomap::AbstractOcTreeNode*), alignof(octomap::AbstractOcTreeNode*)>;
 
 }  // namespace
 
@@ -228,6 +232,45 @@ void UavOcTreeNode::operator delete(void* p, std::size_t size) noexcept {
   }
   NodePool::instance().release(p);
 }
+
+}  // namespace uav_mapping
+
+namespace octomap {
+
+using uav_mapping::ChildArrayPool;
+using uav_mapping::UavOcTreeNode;
+
+template <>
+void OcTreeBaseImpl<UavOcTreeNode, AbstractOccupancyOcTree>::allocNodeChildren(UavOcTreeNode* node) {
+  node->children = static_cast<AbstractOcTreeNode**>(ChildArrayPool::instance().allocate());
+  for (unsigned i = 0; i < 8; ++i) node->children[i] = nullptr;
+}
+
+template <>
+bool OcTreeBaseImpl<UavOcTreeNode, AbstractOccupancyOcTree>::pruneNode(UavOcTreeNode* node) {
+  if (!isNodeCollapsible(node)) return false;
+  node->copyData(*getNodeChild(node, 0));
+  for (unsigned i = 0; i < 8; ++i) deleteNodeChild(node, i);
+  ChildArrayPool::instance().release(node->children);
+  node->children = nullptr;
+  return true;
+}
+
+template <>
+void OcTreeBaseImpl<UavOcTreeNode, AbstractOccupancyOcTree>::deleteNodeRecurs(UavOcTreeNode* node) {
+  if (node->children != nullptr) {
+    for (unsigned i = 0; i < 8; ++i) {
+      if (node->children[i] != nullptr) deleteNodeRecurs(static_cast<UavOcTreeNode*>(node->children[i]));
+    }
+    ChildArrayPool::instance().release(node->children);
+    node->children = nullptr;
+  }
+  delete node;
+}
+
+}  // namespace octomap
+
+namespace uav_mapping {
 
 // ---------------------------------------------------------------------------------------------------------
 // UavOcTree

@@ -35,7 +35,11 @@ inline int32_t packRgb(uint8_t r, uint8_t g, uint8_t b) {
 
 void initOpenVdb() {
   static std::once_flag once;
-  std::call_once(once, [] { openvdb::initialize(); });
+  std::call_once(once, [] {
+    openvdb::initialize();
+    if (!VdbFloatGrid::isRegistered()) VdbFloatGrid::registerGrid();
+    if (!VdbInt32Grid::isRegistered()) VdbInt32Grid::registerGrid();
+  });
 }
 
 }  // namespace
@@ -48,13 +52,13 @@ VdbMap::VdbMap(double resolution_m, const SensorModel& model) : VoxelMap(resolut
 void VdbMap::makeGrids() {
   auto transform = openvdb::math::Transform::createLinearTransform(resolution_m_);
   transform->postTranslate(openvdb::Vec3d(0.5 * resolution_m_));  // index i is the voxel [i*res, (i+1)*res)
-  log_odds_ = openvdb::FloatGrid::create(0.0f);
+  log_odds_ = VdbFloatGrid::create(0.0f);
   log_odds_->setName(kLogOddsName);
   log_odds_->setTransform(transform);
-  time_ = openvdb::FloatGrid::create(kNoTime);
+  time_ = VdbFloatGrid::create(kNoTime);
   time_->setName(kTimeName);
   time_->setTransform(transform->copy());
-  color_ = openvdb::Int32Grid::create(0);
+  color_ = VdbInt32Grid::create(0);
   color_->setName(kColorName);
   color_->setTransform(transform->copy());
 }
@@ -102,8 +106,8 @@ void VdbMap::apply(const FrameUpdate& frame, float time_s, std::vector<uint8_t>&
       }
       if (v >= m.occupied) t |= kIsOccupied;
       transitions[i] = t;
-      const openvdb::Coord leaf = c & ~7;
-      if (leaf != last_leaf) {  // Morton order keeps each 8^3 leaf contiguous
+      const openvdb::Coord leaf = c & ~(kVdbLeafDim - 1);
+      if (leaf != last_leaf) {  // Morton order keeps each leaf (an aligned power-of-two cube) contiguous
         touched.push_back(leaf);
         last_leaf = leaf;
       }
@@ -161,7 +165,7 @@ std::size_t VdbMap::clearBox(const KeyBox& box) {
       for (auto c = r.beginXYZ(); c; ++c) {
         lo.setValue(*c, logodds_.clamp_min);
         ca.setValueOff(*c, 0);
-        touched.push_back(*c & ~7);
+        touched.push_back(*c & ~(kVdbLeafDim - 1));
         ++changed;
       }
     }
@@ -202,14 +206,14 @@ void VdbMap::forEachLeaf(const LeafVisitor& visit, bool occupied_only) const {
     }
     // A tile: emit it whole where the other grids are tiles too, else voxel by voxel.
     const openvdb::CoordBBox tb = it.getBoundingBox();
-    for (int x = tb.min().x(); x <= tb.max().x(); x += 8) {
-      for (int y = tb.min().y(); y <= tb.max().y(); y += 8) {
-        for (int z = tb.min().z(); z <= tb.max().z(); z += 8) {
+    for (int x = tb.min().x(); x <= tb.max().x(); x += kVdbLeafDim) {
+      for (int y = tb.min().y(); y <= tb.max().y(); y += kVdbLeafDim) {
+        for (int z = tb.min().z(); z <= tb.max().z(); z += kVdbLeafDim) {
           const openvdb::Coord o(x, y, z);
           if (t_tree.probeConstLeaf(o) == nullptr && c_tree.probeConstLeaf(o) == nullptr) {
-            emit(o, 8, v);
+            emit(o, kVdbLeafDim, v);
           } else {
-            for (auto c = openvdb::CoordBBox(o, o.offsetBy(7)).beginXYZ(); c; ++c) emit(*c, 1, v);
+            for (auto c = openvdb::CoordBBox(o, o.offsetBy(kVdbLeafDim - 1)).beginXYZ(); c; ++c) emit(*c, 1, v);
           }
         }
       }
@@ -275,9 +279,9 @@ std::function<void()> VdbMap::prepareSave(const std::string& path, double time_o
 
 double VdbMap::load(const std::string& path) {
   if (fileExtension(path) != ".vdb") throw MapIoError(path + ": the openvdb backend loads .vdb files");
-  openvdb::FloatGrid::Ptr lo;
-  openvdb::FloatGrid::Ptr t;
-  openvdb::Int32Grid::Ptr c;
+  VdbFloatGrid::Ptr lo;
+  VdbFloatGrid::Ptr t;
+  VdbInt32Grid::Ptr c;
   double time_origin = std::numeric_limits<double>::quiet_NaN();
   try {
     openvdb::io::File file(path);
@@ -290,9 +294,9 @@ double VdbMap::load(const std::string& path) {
       throw MapIoError(path + ": resolution " + std::to_string(res) + " m differs from the map's " +
                        std::to_string(resolution_m_) + " m");
     time_origin = meta->metaValue<double>("time_origin_s");
-    lo = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid(kLogOddsName));
-    t = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid(kTimeName));
-    c = openvdb::gridPtrCast<openvdb::Int32Grid>(file.readGrid(kColorName));
+    lo = openvdb::gridPtrCast<VdbFloatGrid>(file.readGrid(kLogOddsName));
+    t = openvdb::gridPtrCast<VdbFloatGrid>(file.readGrid(kTimeName));
+    c = openvdb::gridPtrCast<VdbInt32Grid>(file.readGrid(kColorName));
     file.close();
   } catch (const openvdb::Exception& e) {
     throw MapIoError(path + ": " + e.what());

@@ -5,7 +5,7 @@
 //       Per-frame insertion time and memory for each backend x mode on the same nadir frames, plus stock
 //       OcTree::insertPointCloud (octomap_server's insertion) on the same frames as the baseline, and whether
 //       full ray clearing gives exactly stock's set of occupied and free keys (and log-odds).
-//   map_bench pipeline --res 0.5 --frames 5 --mode surface --leaf 0.5 [--backend octomap]
+//   map_bench pipeline --res 0.5 --frames 5 --mode surface --leaf 0.5 [--backend octomap] [--truncation 3]
 //       Time of the whole Mapper::insert (transform, filters, PCL voxel grid, insertion).
 //   map_bench coverage --res 0.5 --backend octomap --mode surface --side 1000 [--spacing 20] [--row 80]
 //       Lawnmower over a side x side square at 50 m AGL; map memory and process RSS at the end.
@@ -224,7 +224,13 @@ int runFrames(const std::map<std::string, std::string>& a) {
 
   std::unique_ptr<octomap::OcTree> stock_tree;
   if (stock) {
+    // octomap_server's sensor model (OctoMap's own OcTree defaults clamp at 0.1192 / 0.971 instead).
+    const SensorModel model;
     stock_tree = std::make_unique<octomap::OcTree>(res);
+    stock_tree->setProbHit(model.hit);
+    stock_tree->setProbMiss(model.miss);
+    stock_tree->setClampingThresMin(model.clamp_min);
+    stock_tree->setClampingThresMax(model.clamp_max);
     std::vector<double> ms;
     const std::size_t rss0 = rssBytes();
     for (const auto& f : frames) {
@@ -285,32 +291,50 @@ int runPipeline(const std::map<std::string, std::string>& a) {
   const double res = std::stod(arg(a, "res", "0.5"));
   const int n_frames = std::stoi(arg(a, "frames", "5"));
   const int threads = std::stoi(arg(a, "threads", "2"));
-  synthetic::World world{synthetic::WorldOptions()};
-  synthetic::Camera cam;
   MapperConfig cfg;
   cfg.backend = backendFromString(arg(a, "backend", "octomap"));
   cfg.resolution_m = res;
   cfg.mode = insertModeFromString(arg(a, "mode", "surface"));
+  cfg.truncation_m = std::stod(arg(a, "truncation", "3"));
   cfg.filter.voxel_leaf_m = std::stod(arg(a, "leaf", "0"));
   cfg.threads = threads;
   Mapper mapper(cfg);
+  // Sensor-frame clouds and their poses: rendered frames (map-frame points shifted to the sensor origin, a
+  // pure translation) or the synthetic camera.
+  std::vector<std::pair<ColoredPoints, RigidTransform>> inputs;
+  if (a.count("frames-file")) {
+    FrameStream stream(a.at("frames-file"));
+    Frame f;
+    while (static_cast<int>(inputs.size()) < n_frames && stream.next(f)) {
+      RigidTransform tf;
+      for (int k = 0; k < 3; ++k) tf.t[k] = f.origin(k);
+      for (Point3& p : f.map_points.xyz) p -= f.origin;
+      inputs.emplace_back(f.map_points, tf);
+    }
+  } else {
+    synthetic::World world{synthetic::WorldOptions()};
+    synthetic::Camera cam;
+    for (int i = 0; i < n_frames; ++i) {
+      const RigidTransform pose = synthetic::nadirPose(world, 20.0 * i + 40.0, 35.0, 50.0);
+      inputs.emplace_back(synthetic::render(world, cam, pose, threads), pose);
+    }
+  }
   std::vector<double> total, filter, insert;
   std::size_t pts_in = 0, pts_out = 0;
-  for (int i = 0; i < n_frames; ++i) {
-    const RigidTransform pose = synthetic::nadirPose(world, 20.0 * i + 40.0, 35.0, 50.0);
-    const ColoredPoints optical = synthetic::render(world, cam, pose, threads);
-    const InsertStats st = mapper.insert(optical, pose, 10.0 + i);
+  for (std::size_t i = 0; i < inputs.size(); ++i) {
+    const InsertStats st = mapper.insert(inputs[i].first, inputs[i].second, 10.0 + 0.5 * static_cast<double>(i));
     total.push_back(st.total_ms);
     filter.push_back(st.filter_ms);
     insert.push_back(st.total_ms - st.filter_ms);
     pts_in += st.filter.points_in;
     pts_out += st.points_inserted;
   }
+  const std::size_t n = std::max<std::size_t>(1, inputs.size());
   std::cout << "{\"kind\": \"pipeline\", \"backend\": \"" << arg(a, "backend", "octomap") << "\", \"mode\": \""
             << arg(a, "mode", "surface") << "\", \"res_m\": " << res << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
             << ", \"median_total_ms\": " << median(total) << ", \"median_filter_ms\": " << median(filter)
-            << ", \"median_insert_ms\": " << median(insert) << ", \"points_in_per_frame\": " << pts_in / n_frames
-            << ", \"points_inserted_per_frame\": " << pts_out / n_frames << "}" << std::endl;
+            << ", \"median_insert_ms\": " << median(insert) << ", \"points_in_per_frame\": " << pts_in / n
+            << ", \"points_inserted_per_frame\": " << pts_out / n << "}" << std::endl;
   return 0;
 }
 
@@ -329,6 +353,7 @@ int runCoverage(const std::map<std::string, std::string>& a) {
   cfg.resolution_m = res;
   cfg.mode = insertModeFromString(arg(a, "mode", "surface"));
   cfg.max_range_m = std::stod(arg(a, "max-range", "-1"));
+  cfg.truncation_m = std::stod(arg(a, "truncation", "3"));
   cfg.threads = threads;
   const std::size_t rss0 = rssBytes();
   Mapper mapper(cfg);

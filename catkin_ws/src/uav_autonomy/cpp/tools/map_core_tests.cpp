@@ -264,21 +264,34 @@ TEST(full_rays_equal_octomap_key_sets) {
 }
 
 TEST(full_rays_match_stock_insert_point_cloud) {
-  // Three overlapping frames: every voxel's log-odds after our insertion equals stock OctoMap's after
-  // OcTree::insertPointCloud (octomap_server's update), in both backends.
+  // Three overlapping frames, inserted twice (so that log-odds reach both clamping limits): every voxel's
+  // log-odds after our insertion equals stock OctoMap's after OcTree::insertPointCloud (octomap_server's
+  // update) with octomap_server's sensor model, in both backends.
   const SmallFrames f = smallFrames(3);
   const double res = 0.25;
+  const SensorModel model;
   octomap::OcTree stock(res);
-  for (std::size_t i = 0; i < f.map_points.size(); ++i) {
-    octomap::Pointcloud pc;
-    for (const Point3& p : f.map_points[i].xyz) pc.push_back(p);
-    stock.insertPointCloud(pc, f.poses[i].origin(), -1.0, false, false);
+  stock.setProbHit(model.hit);
+  stock.setProbMiss(model.miss);
+  stock.setClampingThresMin(model.clamp_min);
+  stock.setClampingThresMax(model.clamp_max);
+  for (int pass = 0; pass < 2; ++pass) {
+    for (std::size_t i = 0; i < f.map_points.size(); ++i) {
+      octomap::Pointcloud pc;
+      for (const Point3& p : f.map_points[i].xyz) pc.push_back(p);
+      stock.insertPointCloud(pc, f.poses[i].origin(), -1.0, false, false);
+    }
   }
   for (Backend b : {Backend::kOctomap, Backend::kOpenVdb}) {
     Mapper m(config(b, res, InsertMode::kFull));
-    for (std::size_t i = 0; i < f.map_points.size(); ++i) m.insertMapPoints(f.map_points[i], f.poses[i].origin(), 5.0 + i);
+    for (int pass = 0; pass < 2; ++pass) {
+      for (std::size_t i = 0; i < f.map_points.size(); ++i)
+        m.insertMapPoints(f.map_points[i], f.poses[i].origin(), 5.0 + i + 3 * pass);
+    }
     std::size_t stock_voxels = 0;
     std::size_t occupied = 0;
+    std::size_t at_max = 0;
+    std::size_t at_min = 0;
     for (auto it = stock.begin_leafs(); it != stock.end_leafs(); ++it) {
       const unsigned size = 1U << (16 - it.getDepth());
       const int half = static_cast<int>(size / 2);
@@ -292,10 +305,13 @@ TEST(full_rays_match_stock_insert_point_cloud) {
             CHECK_MSG(s.log_odds == it->getLogOdds(), "log-odds " << s.log_odds << " vs stock " << it->getLogOdds());
             ++stock_voxels;
             occupied += stock.isNodeOccupied(*it);
+            at_max += it->getLogOdds() == m.map().logOdds().clamp_max;
+            at_min += it->getLogOdds() == m.map().logOdds().clamp_min;
           }
     }
     CHECK(voxels(m.map()).size() == stock_voxels);
     CHECK(occupied > 100 && stock_voxels > 10 * occupied / 2);
+    CHECK_MSG(at_max > 10 && at_min > 10, at_max << " voxels at the maximum, " << at_min << " at the minimum");
   }
 }
 

@@ -59,6 +59,24 @@ class UavOcTreeNode : public octomap::ColorOcTreeNode {
   float time_s_ = kNoTime;
 };
 
+}  // namespace uav_mapping
+
+// The 8-pointer child arrays of inner nodes come from a pool of 64-byte slots as well (malloc would round each
+// 64-byte array up to an 80-byte chunk). OctoMap allocates them in allocNodeChildren() and frees them in
+// pruneNode() and deleteNodeRecurs(NODE*) only; these three are specialised for our node type.
+namespace octomap {
+template <>
+void OcTreeBaseImpl<uav_mapping::UavOcTreeNode, AbstractOccupancyOcTree>::allocNodeChildren(
+    uav_mapping::UavOcTreeNode* node);
+template <>
+bool OcTreeBaseImpl<uav_mapping::UavOcTreeNode, AbstractOccupancyOcTree>::pruneNode(uav_mapping::UavOcTreeNode* node);
+template <>
+void OcTreeBaseImpl<uav_mapping::UavOcTreeNode, AbstractOccupancyOcTree>::deleteNodeRecurs(
+    uav_mapping::UavOcTreeNode* node);
+}  // namespace octomap
+
+namespace uav_mapping {
+
 class UavOcTree : public octomap::OccupancyOcTreeBase<UavOcTreeNode> {
  public:
   explicit UavOcTree(double resolution_m);
