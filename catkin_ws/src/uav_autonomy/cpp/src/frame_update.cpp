@@ -347,6 +347,7 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
     for (std::size_t i = chunk * kChunk; i < end_i; ++i) {
       const Point3& p = points.xyz[i];
       const bool in_range = (max_range < 0.0) || ((p - origin).norm() <= max_range);
+      bool outside = false;  // the point (or its ray) lies outside the addressable key cube
       if (in_range) {
         Key k;
         if (grid_.toKey(p, k)) {
@@ -359,35 +360,36 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
             last_hit_valid = true;
           }
         } else {
-          ++cr.out_of_map;
+          outside = true;
         }
       }
-      if (!rays_wanted) continue;
-      Point3 start = origin;
-      Point3 end = p;
-      if (options.mode == InsertMode::kFull) {
-        if (!in_range) {
-          const Point3 direction = (p - origin).normalized();
-          end = origin + direction * static_cast<float>(max_range);
+      if (rays_wanted && (in_range || options.mode == InsertMode::kFull)) {
+        Point3 start = origin;
+        Point3 end = p;
+        if (options.mode == InsertMode::kFull) {
+          if (!in_range) {
+            const Point3 direction = (p - origin).normalized();
+            end = origin + direction * static_cast<float>(max_range);
+          }
+        } else {  // truncated: only the last `trunc` metres before a hit
+          const Point3 d = p - origin;
+          const double dist = d.norm();
+          if (dist > trunc) start = p - d * static_cast<float>(trunc / dist);
         }
-      } else {  // truncated: only the last `trunc` metres before a hit
-        if (!in_range) continue;
-        const Point3 d = p - origin;
-        const double dist = d.norm();
-        if (dist > trunc) start = p - d * static_cast<float>(trunc / dist);
+        Key ks;
+        Key ke;
+        if ((options.mode == InsertMode::kFull ? origin_ok : grid_.toKey(start, ks)) && grid_.toKey(end, ke)) {
+          s.ray_start[i] = start;
+          s.ray_end[i] = end;
+          s.has_ray[i] = 1;
+          cr.ray_box.add(options.mode == InsertMode::kFull ? origin_key : ks);
+          cr.ray_box.add(ke);
+          ++cr.rays;
+        } else {
+          outside = true;
+        }
       }
-      Key ks;
-      Key ke;
-      if ((options.mode == InsertMode::kFull ? origin_ok : grid_.toKey(start, ks)) && grid_.toKey(end, ke)) {
-        s.ray_start[i] = start;
-        s.ray_end[i] = end;
-        s.has_ray[i] = 1;
-        cr.ray_box.add(options.mode == InsertMode::kFull ? origin_key : ks);
-        cr.ray_box.add(ke);
-        ++cr.rays;
-      } else {
-        ++cr.out_of_map;
-      }
+      if (outside) ++cr.out_of_map;
     }
   };
   tbb::task_arena arena(std::max(1, options.threads));

@@ -752,6 +752,16 @@ TEST(filters_drop_bad_points_and_count_them) {
   CHECK(empty.points_inserted == 0 && m.framesInserted() == 1);
 }
 
+TEST(points_outside_the_key_cube_count_once) {
+  for (InsertMode mode : {InsertMode::kFull, InsertMode::kTruncated, InsertMode::kSurface}) {
+    Mapper m(config(Backend::kOctomap, 0.5, mode));
+    const InsertStats st = m.insertMapPoints(cloud({P(1e6, 0, 0), P(1.1, 1.1, 1.1), P(0, -3e5, 2)}), P(0, 0, 10), 1.0);
+    CHECK_MSG(st.points_out_of_map == 2, toString(mode) << ": " << st.points_out_of_map);
+    CHECK(st.hits == 1);
+    CHECK(st.rays == (mode == InsertMode::kSurface ? 0U : 1U));
+  }
+}
+
 TEST(voxel_grid_filter_downsamples) {
   ColoredPoints pts;
   for (int i = 0; i < 10; ++i) {
