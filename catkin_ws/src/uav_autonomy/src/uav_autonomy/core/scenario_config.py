@@ -39,7 +39,9 @@ __all__ = [
     "TimeMode",
     "TimeSpec",
     "WorldSpec",
+    "effective_yaml",
     "load_scenario",
+    "played_topics",
     "recorded_topics",
     "replay_inputs",
 ]
@@ -257,10 +259,17 @@ class TimeSpec:
     speed_factor: float = 1.0
     #: Lockstep: simulation seconds granted per step (one camera frame period).
     step_s: float = 0.1
+    #: Lockstep only: the step master waits until every process of the run is idle before it
+    #: publishes and before it grants (``uav_sim_bridge.settle``), so two runs of the same
+    #: scenario give the same trajectory and metrics. Slower (no pipelining).
+    deterministic: bool = False
 
     def __post_init__(self) -> None:
         if self.speed_factor <= 0 or self.step_s <= 0:
             msg = "speed_factor and step_s must be > 0"
+            raise ValueError(msg)
+        if self.deterministic and self.mode is not TimeMode.LOCKSTEP:
+            msg = "deterministic: true needs mode: lockstep"
             raise ValueError(msg)
 
 
@@ -405,6 +414,31 @@ def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
     return (f"{cam}/color/image_raw", f"{cam}/color/camera_info", f"{cam}/depth/image_raw", f"{cam}/depth/camera_info")
 
 
+#: Recorded topics that a replay plays back besides :func:`replay_inputs` and tf (everything the
+#: scorer, the tracker and the feature evaluator read that the replay does not regenerate).
+REPLAYED_TOPICS = (
+    "/uav/ground_truth/odom",
+    "/uav/sim_state",
+    "/uav/battery",
+    "/uav/controller/state",
+    "/autonomy/goal_reason",
+    "/autonomy/target",
+    "/autonomy/weights",
+    "/detections/ground_truth",
+    "/sim/collision",
+    "/scenario/status",
+)
+
+
+def played_topics(scenario: Scenario) -> tuple[str, ...]:
+    """What ``rosbag play`` publishes in a replay (the map server, the evaluators, the tracker and the
+    scorer regenerate everything else)."""
+    topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
+    if scenario.search is not None and scenario.search.detection_topic not in topics:
+        topics.append(scenario.search.detection_topic)
+    return tuple(topics)
+
+
 def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     """The topic list for ``rosbag record`` (presets are cumulative: replay includes report)."""
     spec = scenario.recording
@@ -416,6 +450,19 @@ def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
         topics += replay_inputs(scenario)
     topics += [t for t in spec.extra_topics if t not in topics]
     return tuple(topics)
+
+
+def effective_yaml(scenario: Scenario, note: str = "") -> str:
+    """The scenario as a self-contained YAML file (absolute world path, no ``source``), loadable anywhere."""
+    import yaml  # noqa: PLC0415
+
+    from uav_common.config import to_mapping  # noqa: PLC0415
+
+    data = to_mapping(scenario)
+    data.pop("source", None)
+    data["world"]["config"] = str(scenario.world_config_path)
+    header = f"# Effective scenario of a run (from {scenario.source}{note}).\n"
+    return header + yaml.safe_dump(data, sort_keys=False)
 
 
 def load_scenario(path: Path, *, overrides: dict[str, Any] | None = None) -> Scenario:

@@ -25,6 +25,7 @@ __all__ = [
     "check_stop",
     "flying_phase",
     "point_in_polygon",
+    "resume_needed",
 ]
 
 
@@ -57,6 +58,22 @@ def flying_phase(scenario: Scenario) -> Phase:
 def controller_state_for(scenario: Scenario) -> str:
     """The controller state to request after takeoff."""
     return "AUTONOMOUS" if scenario.strategy is Strategy.AUTONOMOUS else "SCRIPTED"
+
+
+def resume_needed(phase: Phase, controller_state: str, *, in_air: bool, link_ok: bool, autopilot_mode: str) -> bool:
+    """The controller yielded in the air while the mission was flying: ask it to fly on.
+
+    That happens when an autopilot failsafe took over (e.g. offboard setpoints late on an
+    overloaded machine: the autopilot holds position and the controller yields). RTL and
+    LAND are left alone: those are the autopilot's battery, geofence or link decisions.
+    """
+    return (
+        phase in (Phase.LOITERING, Phase.SEARCHING, Phase.HOLDING)
+        and controller_state == "IDLE"
+        and in_air
+        and link_ok
+        and autopilot_mode not in ("AUTO.RTL", "AUTO.LAND")
+    )
 
 
 def check_stop(

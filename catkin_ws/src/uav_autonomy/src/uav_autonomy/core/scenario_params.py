@@ -104,7 +104,7 @@ def sim_bridge(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if ctx.world_yaml:
         out["world"] = ctx.world_yaml
     if scenario.time.mode is TimeMode.LOCKSTEP:
-        out["lockstep"] = {"role": ctx.lockstep_role}
+        out["lockstep"] = {"role": ctx.lockstep_role, "steps_per_grant": lockstep_steps(scenario)}
     else:
         out["lockstep"] = {"role": "off"}
     if scenario.search is not None:
@@ -113,6 +113,21 @@ def sim_bridge(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         p = ctx.person
         out["object_poses"] = {str(p["name"]): [float(p["x_m"]), float(p["y_m"]), 0.0]}
     return out
+
+
+def lockstep_steps(scenario: Scenario) -> int:
+    """Physics steps per lockstep grant: ``time.step_s`` at the SITL's physics rate.
+
+    Raises:
+        ScenarioError: ``step_s`` is not a whole number of physics steps.
+    """
+    physics = scenario.node_params.get("sitl", {}).get("physics", {})
+    rate = float(physics.get("rate_hz", 250.0)) if isinstance(physics, Mapping) else 250.0
+    steps = scenario.time.step_s * rate
+    if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        msg = f"time.step_s {scenario.time.step_s} s is not a whole number of {rate:g} Hz physics steps"
+        raise ScenarioError(msg)
+    return round(steps)
 
 
 def mission_manager(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:

@@ -145,6 +145,8 @@ class RunScorer:
     _mot_by_context: dict[str, dict[int, MotScorer]] = field(default_factory=dict)
     _events: list[tuple[float, str]] = field(default_factory=list)
     _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
+    _tracking_cache: dict[str, Any] | None = None
+    _takeoff_t_s: float | None = None
     _complete_t_s: float = math.nan
     _complete_what: str = ""
     _last_t_s: float = -math.inf
@@ -367,11 +369,16 @@ class RunScorer:
 
     # ---- reading -------------------------------------------------------------------------
 
-    def _airborne_s(self) -> float:
-        for pose, agl in zip(self._poses, self._agl, strict=True):
-            if agl >= 1.0:
-                return max(0.0, self._last_t_s - pose.t_s)
-        return 0.0
+    def _airborne_s(self, now_s: float) -> float:
+        """Time from the first pose 1 m above the ground to ``now_s`` (or the last record, if earlier)."""
+        if self._takeoff_t_s is None:
+            for pose, agl in zip(self._poses, self._agl, strict=True):
+                if agl >= 1.0:
+                    self._takeoff_t_s = pose.t_s
+                    break
+        if self._takeoff_t_s is None:
+            return 0.0
+        return max(0.0, min(now_s, self._last_t_s) - self._takeoff_t_s)
 
     def sample(self, now_s: float) -> dict[str, float | str]:
         """One time-series row at ``now_s`` (the CSV columns; NaN where unknown)."""
@@ -411,13 +418,18 @@ class RunScorer:
             "collisions": float(len(self._collisions)),
         }
 
-    def summary(self, now_s: float) -> dict[str, Any]:
-        """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer)."""
+    def summary(self, now_s: float, *, tracking: bool = True) -> dict[str, Any]:
+        """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer).
+
+        Args:
+            tracking: recompute the MOT metrics (py-motmetrics takes ~50 ms per accumulator on
+                a long run); ``False`` reuses the last computed ones.
+        """
         spec = self.spec
         times = np.array([p.t_s for p in self._poses])
         alt = altitude_stats(times, np.array(self._agl), spec.altitude_floor_m)
         bat = battery_use(self._battery)
-        airborne_s = self._airborne_s()
+        airborne_s = self._airborne_s(now_s)
         mapped_pct = 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
         coverage_rate = self._mapped_m2 / airborne_s if airborne_s > 0 else math.nan
         mean_alt = alt.mean_m
@@ -473,7 +485,7 @@ class RunScorer:
                 ],
             },
             "detection": self._detection_summary(),
-            "tracking": self._tracking_summary(),
+            "tracking": self._tracking_summary() if tracking or self._tracking_cache is None else self._tracking_cache,
             "depth": self._depth_summary(),
             "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
         }
@@ -510,6 +522,10 @@ class RunScorer:
         }
 
     def _tracking_summary(self) -> dict[str, Any]:
+        self._tracking_cache = self._tracking_summary_now()
+        return self._tracking_cache
+
+    def _tracking_summary_now(self) -> dict[str, Any]:
         if self._mot is None:
             return {"frames": 0}
         by_context: dict[str, dict[str, dict[str, float]]] = {}

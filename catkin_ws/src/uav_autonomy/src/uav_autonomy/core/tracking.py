@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -150,6 +151,16 @@ class MotResult:
         return {k: float(v) for k, v in self.__dict__.items()}
 
 
+_HOST: list[object] = []
+
+
+def _metrics_host(mm: object) -> Any:
+    """One motmetrics MetricsHost per process (creating one inspects every metric: ~10 ms)."""
+    if not _HOST:
+        _HOST.append(mm.metrics.create())  # type: ignore[attr-defined]
+    return _HOST[0]
+
+
 class MotScorer:
     """CLEAR-MOT and ID metrics (py-motmetrics) of tracks against true object positions.
 
@@ -167,6 +178,7 @@ class MotScorer:
         self._gate_m2 = gate_m * gate_m
         self._acc = motmetrics.MOTAccumulator(auto_id=True)
         self.frames = 0
+        self._result: MotResult | None = None
 
     def update(
         self,
@@ -181,9 +193,15 @@ class MotScorer:
         dist = self._mm.distances.norm2squared_matrix(gt, hy, max_d2=self._gate_m2)
         self._acc.update(list(truth_ids), list(track_ids), dist)
         self.frames += 1
+        self._result = None
 
     def result(self) -> MotResult:
-        """Metrics over every frame so far (NaN where undefined, e.g. no objects)."""
+        """Metrics over every frame so far (NaN where undefined, e.g. no objects); cached until the next frame."""
+        if self._result is None:
+            self._result = self._compute()
+        return self._result
+
+    def _compute(self) -> MotResult:
         if self.frames == 0:
             nan = math.nan
             return MotResult(nan, nan, nan, 0, 0, 0, 0, 0, 0, nan, nan)
@@ -200,8 +218,7 @@ class MotScorer:
             "precision",
             "recall",
         ]
-        host = self._mm.metrics.create()
-        row = host.compute(self._acc, metrics=names, name="run").iloc[0]
+        row = _metrics_host(self._mm).compute(self._acc, metrics=names, name="run").iloc[0]
 
         def f(name: str) -> float:
             value = float(row[name])

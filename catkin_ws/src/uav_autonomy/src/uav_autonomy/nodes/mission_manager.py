@@ -50,6 +50,7 @@ from uav_autonomy.core.scenario_mission import (
     check_stop,
     controller_state_for,
     flying_phase,
+    resume_needed,
 )
 from uav_autonomy.core.scenario_params import scripted_request
 from uav_autonomy.core.scoring_convert import detections_from_msg
@@ -99,6 +100,9 @@ class MissionManager:
         self.stop_wall_s: float | None = None
         self.flight_requested = False
         self.hold_requested = False
+        self.resumes = 0
+        self.max_resumes = 10
+        self.last_resume_wall = -math.inf
         self.rtf_window: deque[tuple[float, float]] = deque(maxlen=20)
         self.status_pub: rospy.Publisher | None = None
         self.target_pub: rospy.Publisher | None = None
@@ -207,6 +211,7 @@ class MissionManager:
                 self.phase = flying_phase(self.scenario)
             if self.person is not None and not self.hold_requested:
                 self._request_hold()
+            self._resume_if_yielded(ctrl)
             self.stop_reason = check_stop(
                 self.scenario.stop,
                 elapsed_s=now - self.start_sim_s,
@@ -230,6 +235,24 @@ class MissionManager:
                 if not self.scorer_final:
                     rospy.logwarn(f"mission_manager: no final metrics from the scorer after {waited:.0f} s; ending")
                 rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
+
+    def _resume_if_yielded(self, ctrl: ControllerState | None) -> None:
+        if ctrl is None or not resume_needed(
+            self.phase, ctrl.state, in_air=ctrl.in_air, link_ok=ctrl.link_ok, autopilot_mode=ctrl.autopilot_mode
+        ):
+            return
+        if self.resumes >= self.max_resumes or time.monotonic() - self.last_resume_wall < 3.0:
+            return
+        self.resumes += 1
+        self.last_resume_wall = time.monotonic()
+        rospy.logwarn(
+            f"mission_manager: the controller yielded in the air ({ctrl.last_event!r}); "
+            f"resuming the mission ({self.resumes}/{self.max_resumes})"
+        )
+        if self.phase is Phase.HOLDING and self.person is not None:
+            self._request_hold()
+        else:
+            self._request_flight()
 
     def _rtf(self) -> float:
         if len(self.rtf_window) < 2:

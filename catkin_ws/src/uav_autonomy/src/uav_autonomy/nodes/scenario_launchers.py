@@ -10,6 +10,7 @@ flushes its log).
     sitl SCENARIO --run-dir DIR --port sitl_tcp=5760 --port sim=4560 [--no-router] [--print]
     mavlink_router --run-dir DIR --port sitl_tcp=5760 --port router_tcp=5790 ... [--print]
     scenario_record SCENARIO --run-dir DIR [--print]
+    scenario_play SCENARIO BAG [--rate R] [--print]
 
 ``--print`` prints the command (and the router configuration) instead of running it.
 A broken scenario file or a bad port exits with status 2 and a message saying what to fix.
@@ -24,12 +25,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uav_autonomy.core.scenario_config import Scenario, load_scenario, recorded_topics
+from uav_autonomy.core.scenario_config import Scenario, load_scenario, played_topics, recorded_topics, replay_inputs
 from uav_autonomy.core.scenario_errors import ScenarioError
 from uav_autonomy.core.scenario_launch import RunPorts, router_conf, sitl_argv
 from uav_common.config import ConfigError
 
-__all__ = ["record_main", "router_main", "sitl_main"]
+__all__ = ["play_main", "record_main", "router_main", "sitl_main"]
 
 
 def _split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -133,4 +134,59 @@ def record_main() -> None:
     bag = args.run_dir / "run.bag"
     # lz4 chunks: cheap to write, readable by rosbag and by the rosbags library.
     argv = ["rosbag", "record", "--lz4", "--buffsize=512", "-O", str(bag), *recorded_topics(scenario), *ros]
+    _exec(prog, argv, args.print_only)
+
+
+def bag_topics(bag: Path) -> set[str]:
+    """Topics of a ROS 1 bag (index only; fast).
+
+    Raises:
+        ScenarioError: the bag is missing, unfinished or unreadable (the message says what to do).
+    """
+    if not bag.is_file():
+        hint = (
+            " (an unfinished recording is run.bag.active: run `rosbag reindex` on it)"
+            if bag.with_suffix(".bag.active").exists()
+            else ""
+        )
+        msg = f"{bag}: no such bag{hint}"
+        raise ScenarioError(msg)
+    import rosbag  # noqa: PLC0415 - the replay needs ROS anyway
+
+    try:
+        with rosbag.Bag(str(bag)) as b:
+            return set(b.get_type_and_topic_info().topics)
+    except (rosbag.ROSBagException, OSError) as err:
+        msg = f"{bag}: cannot read the bag ({err}); if the recording was interrupted, run `rosbag reindex` on it"
+        raise ScenarioError(msg) from err
+
+
+def play_main() -> None:
+    """``scenario_play SCENARIO BAG``: ``rosbag play --clock`` of what a replay needs, and nothing else."""
+    prog = "scenario_play"
+    ours, ros = _split_ros_args(sys.argv[1:])
+    p = argparse.ArgumentParser(prog=prog)
+    p.add_argument("scenario", type=Path)
+    p.add_argument("bag", type=Path)
+    p.add_argument("--rate", type=float, default=1.0)
+    p.add_argument("--print", action="store_true", dest="print_only")
+    args = p.parse_args(ours)
+    scenario = _load(prog, args.scenario)
+    try:
+        present = bag_topics(args.bag)
+    except ScenarioError as err:
+        _fail(prog, str(err))
+        raise
+    missing = [t for t in replay_inputs(scenario) if t not in present]
+    if missing:
+        _fail(
+            prog,
+            f"{args.bag} lacks {', '.join(missing)}: it was recorded with recording.preset "
+            f"'{scenario.recording.preset}'; record with `recording: {{preset: replay}}` to replay the map",
+        )
+    topics = [t for t in played_topics(scenario) if t in present]
+    argv = [
+        "rosbag", "play", "--clock", "--quiet", f"--rate={args.rate:g}", "--delay=3", "--queue=2000",
+        str(args.bag), *ros, "--topics", *topics,
+    ]  # fmt: skip
     _exec(prog, argv, args.print_only)

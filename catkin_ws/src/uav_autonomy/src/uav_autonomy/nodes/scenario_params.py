@@ -3,7 +3,8 @@
 Used by the scenario launch files as ``<param name="/NODE/overrides" type="yaml"
 command="$(find uav_autonomy)/nodes/scenario_params $(arg scenario) NODE --run-dir ..."/>``
 so every node of a run takes its settings from the one scenario file. ``NODE`` may also be
-``scenario`` (the whole parsed scenario) or ``scripted`` (the controller's SCRIPTED request).
+``scenario`` (the whole parsed scenario), ``scripted`` (the controller's SCRIPTED request) or
+``settle`` (whether the bridge waits for the run to go idle at each step: ``time.deterministic``).
 
 Options: ``--run-dir DIR`` (the run folder), ``--world-cache-dir DIR`` (the bridge's world
 cache), ``--lockstep-role master|participant``. For search and rescue the person of
@@ -80,6 +81,8 @@ def main() -> None:
         scenario = load_scenario(args.scenario)
         if args.node == "scenario":
             data: Any = to_mapping(scenario)
+        elif args.node == "settle":
+            data = bool(scenario.time.deterministic)
         elif args.node == "scripted":
             data = to_mapping(scripted_request(scenario))
         else:

@@ -36,6 +36,8 @@ the first time, then cached on disk).
 from __future__ import annotations
 
 import csv
+import heapq
+import itertools
 import json
 import math
 import os
@@ -49,9 +51,10 @@ from typing import Any
 import numpy as np
 import rospy
 from nav_msgs.msg import Odometry
+from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import BatteryState, Image
 
-from uav_autonomy.core.scenario_config import Scenario, load_scenario
+from uav_autonomy.core.scenario_config import Scenario, effective_yaml, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
 from uav_autonomy.core.scenario_world import load_world, scene_truth, world_summary
 from uav_autonomy.core.scoring_convert import (
@@ -86,6 +89,11 @@ from uav_msgs.srv import ExportVoxels
 IMAGE_KINDS = {"color": "color/image_raw", "depth": "depth/image_raw", "instance": "instance/image_raw"}
 #: Subscriber queues: deep enough that a replay at full speed loses nothing.
 QUEUE = 2000
+#: Records are scored in stamp order once ROS time is this far past their stamp (late messages
+#: from other processes still count in order); the run's end cuts at the stop instant exactly.
+HOLD_S = 0.5
+#: Tracking metrics (py-motmetrics, slow on long runs) are recomputed this often (simulation s).
+TRACKING_PERIOD_S = 20.0
 
 
 def default_truth(scenario: Scenario) -> SceneTruth:
@@ -147,6 +155,11 @@ class ScorerNode:
         self.world_info: dict[str, Any] = {}
         self.truth_note = "loading the world"
         self._accuracy_busy = threading.Lock()
+        self._pending: list[tuple[float, int, str, Any]] = []
+        self._seq = itertools.count()
+        self._pending_lock = threading.Lock()
+        self.end_s: float | None = None
+        self._next_tracking_s = -math.inf
         self._next_accuracy_s = -math.inf
         self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
         self.versions = run_versions()
@@ -165,8 +178,9 @@ class ScorerNode:
         sub = rospy.Subscriber
         sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
         sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
-        sub("/map_server/layers", GridLayers, self.on_layers, queue_size=2, buff_size=2**26)
-        sub("/autonomy/features", GridLayers, self.on_features, queue_size=2, buff_size=2**26)
+        # numpy_msg: the float32[] of big grids deserialises into an array, not a Python tuple.
+        sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)
+        sub("/autonomy/features", numpy_msg(GridLayers), self.on_features, queue_size=2, buff_size=2**26)
         sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=QUEUE)
         if self.detection_topic != "/detections/ground_truth":
             sub(self.detection_topic, DetectionArray, self.on_detector, queue_size=QUEUE)
@@ -184,8 +198,8 @@ class ScorerNode:
         rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
         rospy.on_shutdown(self.finish)
         threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
-        if self.run_dir is not None and self.scenario.source is not None:
-            write_atomic(self.run_dir / "scenario.yaml", self.scenario.source.read_text())
+        if self.run_dir is not None and not (self.run_dir / "scenario.yaml").exists():
+            write_atomic(self.run_dir / "scenario.yaml", effective_yaml(self.scenario))
 
     def _load_truth(self) -> None:
         """World -> bounds, ground, objects at once; surface voxels later (slow the first time)."""
@@ -218,38 +232,59 @@ class ScorerNode:
     def _feed(self, convert: Any, method: str) -> Any:
         def callback(msg: Any) -> None:
             record = convert(msg)
-            with self.lock:
-                if not self.finished:
-                    getattr(self.scorer, method)(record)
+            self._push(record.t_s, method, record)
 
         return callback
+
+    def _push(self, t_s: float, method: str, record: Any) -> None:
+        with self._pending_lock:
+            if self.end_s is None or t_s <= self.end_s:
+                heapq.heappush(self._pending, (t_s, next(self._seq), method, record))
+
+    def _flush(self, upto_s: float) -> None:
+        """Score every held record stamped up to ``upto_s``, in stamp order (arrival order on ties)."""
+        batch = []
+        with self._pending_lock:
+            while self._pending and self._pending[0][0] <= upto_s:
+                batch.append(heapq.heappop(self._pending))
+        if not batch:
+            return
+        with self.lock:
+            for t_s, _seq, method, record in batch:
+                if self.end_s is not None and t_s > self.end_s:
+                    continue
+                try:
+                    if method == "truth_detections":
+                        self.scorer.add_detections(record, is_truth=True)
+                    elif method == "detector":
+                        self.scorer.add_detections(record, is_truth=False)
+                    else:
+                        getattr(self.scorer, method)(record)
+                except ScenarioError as err:
+                    rospy.logwarn_throttle(10.0, f"scorer: record at {t_s:.2f} s rejected: {err}")
 
     # ---- callbacks -----------------------------------------------------------------------
 
     def on_layers(self, msg: GridLayers) -> None:
-        self.last_layers = msg
+        if self.end_s is None or msg.header.stamp.to_sec() <= self.end_s:
+            self.last_layers = msg
         self._feed(grid_from_msg, "add_layers")(msg)
 
     def on_features(self, msg: GridLayers) -> None:
-        self.last_features = msg
+        if self.end_s is None or msg.header.stamp.to_sec() <= self.end_s:
+            self.last_features = msg
 
     def on_truth_detections(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
-        with self.lock:
-            if not self.finished:
-                self.scorer.add_detections(frame, is_truth=True)
+        self._push(frame.t_s, "truth_detections", frame)
 
     def on_detector(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
-        with self.lock:
-            if not self.finished:
-                self.scorer.add_detections(frame, is_truth=False)
+        self._push(frame.t_s, "detector", frame)
 
     def on_controller(self, msg: ControllerState) -> None:
         sample = controller_from_msg(msg, rospy.get_time())
-        with self.lock:
-            if not self.finished:
-                self.scorer.add_controller(sample)
+        self._push(sample.t_s, "add_controller", sample)
 
     def on_status(self, msg: ScenarioStatus) -> None:
         t = msg.header.stamp.to_sec()
@@ -266,18 +301,25 @@ class ScorerNode:
                 self.stopped = True
                 self.scorer.add_event(t, f"stop: {msg.stop_reason}")
         if first_stop:
+            with self._pending_lock:
+                self.end_s = t
             # Final metrics at the stop instant (not whenever this callback runs), so a live run and its
             # replay end on the same sample.
             self.finish(at_s=t)
 
     def on_tick(self, _event: rospy.timer.TimerEvent) -> None:
         now = rospy.get_time()
-        if now <= 0 or self.finished or self._finish_lock.locked():
+        if now <= 0 or self.finished or self._finish_lock.locked() or self.end_s is not None:
             return
         if now >= self._next_accuracy_s:
             self._next_accuracy_s = now + self.scenario.scoring.map_accuracy_period_s
             threading.Thread(target=self._map_accuracy, args=(now,), daemon=True).start()
-        self._emit(now)
+        scored_to = now - HOLD_S
+        self._flush(scored_to)
+        tracking = now >= self._next_tracking_s
+        if tracking:
+            self._next_tracking_s = now + TRACKING_PERIOD_S
+        self._emit(scored_to, tracking=tracking)
         elapsed = now - self.start_s if self.start_s is not None else None
         if elapsed is None or not self.snapshots_due:
             return
@@ -322,10 +364,10 @@ class ScorerNode:
 
     # ---- output --------------------------------------------------------------------------
 
-    def _summary(self, now: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    def _summary(self, now: float, *, tracking: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
         with self.lock:
             row = self.scorer.sample(now)
-            summary = self.scorer.summary(now)
+            summary = self.scorer.summary(now, tracking=tracking)
         summary["scenario"] = self.scenario.name
         summary["stop_reason"] = next(
             (e["what"][6:] for e in reversed(summary["events"]) if e["what"].startswith("stop: ")), ""
@@ -339,8 +381,8 @@ class ScorerNode:
         summary["final"] = self._final
         return row, summary
 
-    def _emit(self, now: float) -> None:
-        row, summary = self._summary(now)
+    def _emit(self, now: float, *, tracking: bool = True) -> None:
+        row, summary = self._summary(now, tracking=tracking)
         self.rows.append(row)
         if self.metrics_pub is not None:
             self.metrics_pub.publish(metrics_msg(rospy.Time.from_sec(now), row, summary))
@@ -390,6 +432,12 @@ class ScorerNode:
             if self.finished:
                 return
             now = at_s if at_s is not None else rospy.get_time()
+            if at_s is not None:
+                # Let records stamped up to the stop arrive (the simulation, or the bag, runs on).
+                deadline = time.monotonic() + 10.0
+                while rospy.get_time() < at_s + 2 * HOLD_S and time.monotonic() < deadline and not rospy.is_shutdown():
+                    time.sleep(0.05)
+            self._flush(now)
             if now > 0 and not rospy.is_shutdown():
                 self._map_accuracy(now, wait=True)
             if now > 0:

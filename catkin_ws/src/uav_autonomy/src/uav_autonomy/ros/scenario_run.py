@@ -32,15 +32,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, TextIO
 
-import yaml
-
 from uav_autonomy.core.report_cli import headline, tool_versions
 from uav_autonomy.core.report_data import read_run_bag
 from uav_autonomy.core.report_html import build_report
-from uav_autonomy.core.scenario_config import Scenario, TimeMode, TimeSpec, load_scenario
+from uav_autonomy.core.scenario_config import Scenario, TimeMode, TimeSpec, effective_yaml, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
 from uav_autonomy.core.scenario_launch import RunPorts
-from uav_common.config import ConfigError, to_mapping
+from uav_common.config import ConfigError
 
 __all__ = ["main", "scenario_yaml"]
 
@@ -50,12 +48,8 @@ DEMO_SECONDS = 90.0
 
 
 def scenario_yaml(scenario: Scenario) -> str:
-    """The effective scenario as a self-contained YAML file (absolute world path, no ``source``)."""
-    data = to_mapping(scenario)
-    data.pop("source", None)
-    data["world"]["config"] = str(scenario.world_config_path)
-    header = f"# Effective scenario of this run (from {scenario.source}, with uav-run's overrides).\n"
-    return header + yaml.safe_dump(data, sort_keys=False)
+    """The effective scenario (with uav-run's overrides) as a self-contained YAML file."""
+    return effective_yaml(scenario, ", with uav-run's overrides")
 
 
 def _free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -162,7 +156,11 @@ def _overrides(scenario: Scenario, args: argparse.Namespace) -> Scenario:
         time_spec = replace(time_spec, mode=TimeMode.LOCKSTEP)
     if args.speed_factor:
         time_spec = TimeSpec(mode=TimeMode.FREE, speed_factor=args.speed_factor, step_s=time_spec.step_s)
-    recording = replace(scenario.recording, enabled=False) if args.no_record else scenario.recording
+    recording = scenario.recording
+    if args.no_record or args.record == "none":
+        recording = replace(recording, enabled=False)
+    elif args.record:
+        recording = replace(recording, enabled=True, preset=args.record)
     out = replace(scenario, stop=stop, time=time_spec, recording=recording)
     if args.name:
         out = replace(out, name=args.name)
@@ -178,7 +176,12 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--time-limit", type=float, help="override stop.time_limit_s (simulated seconds)")
     p.add_argument("--lockstep", action="store_true", help="run in lockstep (time.mode: lockstep)")
     p.add_argument("--speed-factor", type=float, help="free-running at this speed factor")
-    p.add_argument("--no-record", action="store_true", help="no rosbag (no report figures beyond metrics)")
+    p.add_argument(
+        "--record",
+        choices=("report", "replay", "none"),
+        help="what rosbag records: the report's topics, also what a replay needs (big), or nothing",
+    )
+    p.add_argument("--no-record", action="store_true", help="same as --record none")
     p.add_argument("--name", help="run name (default: the scenario's)")
     p.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "runs", help="parent of the run folder")
     p.add_argument("--run-dir", type=Path, help="exact run folder (default: RUNS_DIR/<name>-<time>)")

@@ -97,16 +97,19 @@ def status_msg(stamp: rospy.Time, fields: dict[str, Any]) -> ScenarioStatus:
 
 
 def downsampled_layers_msg(msg: GridLayers, max_cells: int) -> GridLayers:
-    """A GridLayers message reduced to at most ``max_cells`` per side (same header and layer names)."""
-    if max(int(msg.width), int(msg.height)) <= max_cells:
-        return msg
+    """A GridLayers message reduced to at most ``max_cells`` per side (same header and layer names).
+
+    Always a new plain ``GridLayers`` (the input may be a ``numpy_msg`` instance).
+    """
     grid = downsample_grid(grid_from_msg(msg), max_cells)
     rows, cols = grid.shape
     out = GridLayers(header=msg.header, resolution_m=grid.resolution_m)
     out.origin_x_m, out.origin_y_m = grid.origin_x_m, grid.origin_y_m
     out.width, out.height = cols, rows
     out.names = list(grid.layers)
-    out.data = np.concatenate([grid.layers[n].astype(np.float32).ravel() for n in out.names]).tolist()
+    out.data = (
+        np.concatenate([grid.layers[n].astype(np.float32).ravel() for n in out.names]).tolist() if out.names else []
+    )
     return out
 
 

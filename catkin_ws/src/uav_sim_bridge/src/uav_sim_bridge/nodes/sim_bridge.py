@@ -26,6 +26,12 @@ Parameters:
     ~overrides (dict, default {}): deep-merged over the file (e.g. from a scenario).
     ~world, ~world_cache_dir, ~sim_host, ~sim_port, ~local_port, ~lockstep_role (str/int, "" = from file).
     ~cameras (str, "" = all): comma-separated subset of the configured cameras to run.
+    ~settle (bool, default false), ~settle_root_pid (int, default: our parent, i.e. roslaunch),
+    ~settle_timeout_s (float, 10): lockstep master only: before publishing a state's /clock, before
+    publishing the rest of it and before granting the next step, wait until every process of the
+    run is idle (uav_sim_bridge.settle), so the run does not depend on scheduling (determinism).
+    ~settle_wait_nodes (list of node names, default []): with ~settle, the first grant waits until
+    these nodes are registered and idle (their timers then all start at simulation time 0).
     Sets ~world_hash, ~world_name and ~world_dir (cache folder with objects.json and world.ply).
 
 Threading: every GL call and all publishing of sensor data happen in the main loop's
@@ -35,6 +41,7 @@ thread; the service callback only queues a request and waits for the loop to app
 from __future__ import annotations
 
 import math
+import os
 import queue
 import sys
 import threading
@@ -44,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rosgraph
 import rospy
 import tf2_ros
 from nav_msgs.msg import Odometry
@@ -68,6 +76,7 @@ from uav_sim_bridge.errors import SimBridgeError
 from uav_sim_bridge.render import Renderer
 from uav_sim_bridge.ros import conversions as conv
 from uav_sim_bridge.ros.pointcloud2 import xyzrgb_to_pointcloud2
+from uav_sim_bridge.settle import Settle
 from uav_sim_bridge.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
 
 __all__ = ["SimBridgeNode", "load_node_config", "main"]
@@ -201,6 +210,15 @@ class SimBridgeNode:
         self.grants = 0
         self.frames = 0
         self._last_bad = 0
+        # Determinism (issue 9, added by the scenario engineer): optional settle waits, lockstep master only.
+        self._settle: Settle | None = None
+        self._settle_nodes: list[str] = []
+        self._settle_started = False
+        if bool(rospy.get_param("~settle", False)) and cfg.lockstep.role == LockstepRole.MASTER:
+            root = int(rospy.get_param("~settle_root_pid", 0)) or os.getppid()
+            self._settle = Settle(root, timeout_s=float(rospy.get_param("~settle_timeout_s", 10.0)))
+            self._settle_nodes = [str(n) for n in rospy.get_param("~settle_wait_nodes", [])]
+            rospy.loginfo("lockstep: settling (waiting for every process under pid %d to go idle) at each step", root)
 
     # ------------------------------------------------------------------ setup
     def _make_publishers(self) -> None:
@@ -317,6 +335,15 @@ class SimBridgeNode:
             self.frames,
             self.grants,
         )
+        if self._settle is not None:
+            st = self._settle.stats
+            rospy.loginfo(
+                "lockstep settle: %d waits, %.1f s in total (max %.2f s), %d timeouts",
+                st.waits,
+                st.total_wait_s,
+                st.max_wait_s,
+                st.timeouts,
+            )
 
     def _on_grant_ack(self, result: int) -> None:
         self._awaiting_ack = False
@@ -334,6 +361,12 @@ class SimBridgeNode:
             return  # nothing heard from the SITL yet
         lk = self.cfg.lockstep
         if self._awaiting_ack:
+            if self._settle is not None:
+                # Determinism (issue 9): a late ACK means a busy SITL, not a lost grant; granting again
+                # would run extra steps. Wait (and say so) instead.
+                if now - self._grant_sent_at > 10.0 * lk.grant_timeout_s:
+                    rospy.logwarn_throttle(10.0, "lockstep: still waiting for the SITL's COMMAND_ACK for SIM_STEP")
+                return
             if now - self._grant_sent_at > lk.grant_timeout_s:
                 rospy.logwarn_throttle(
                     5.0, "lockstep: no COMMAND_ACK for SIM_STEP within %.1f s; granting again", lk.grant_timeout_s
@@ -354,7 +387,100 @@ class SimBridgeNode:
                 )
         self._send_grant(now)
 
+    def _settle_first_grant(self) -> None:
+        """Determinism (issue 9): before simulation time starts, every listed node is up and idle."""
+        assert self._settle is not None
+        master = rosgraph.Master(rospy.get_name())
+        deadline = time.monotonic() + 120.0
+        missing = list(self._settle_nodes)
+        while missing and time.monotonic() < deadline and not rospy.is_shutdown():
+            still = []
+            for name in missing:
+                try:
+                    master.lookupNode(name)
+                except (rosgraph.MasterError, OSError):
+                    still.append(name)
+            missing = still
+            if missing:
+                time.sleep(0.1)
+        if missing:
+            rospy.logwarn("lockstep settle: nodes %s never registered; starting anyway", missing)
+        unconnected = self._wait_connected(master, deadline)
+        if unconnected:
+            rospy.logwarn("lockstep settle: subscriptions still not connected: %s; starting anyway", unconnected[:5])
+        self._settle.wait(rospy.is_shutdown)
+        self._settle_started = True
+
+    def _wait_connected(self, master: Any, deadline: float) -> list[str]:
+        """Until every subscription of the listed nodes (and ours) is connected to every publisher of its topic,
+        and the graph has not changed for a second (the nodes have finished setting up, timers included).
+
+        A subscriber that connects after simulation time has started misses the first messages, and a
+        timer created late has another phase, at moments that depend on scheduling; so the first grant
+        waits for the whole graph.
+        """
+        import xmlrpc.client  # noqa: PLC0415
+
+        watched = set(self._settle_nodes) | {rospy.get_name()}
+        pending: list[str] = []
+        uris: dict[str, str] = {}
+
+        def uri(node: str) -> str:
+            if node not in uris:
+                uris[node] = str(master.lookupNode(node)).rstrip("/")
+            return uris[node]
+
+        last_state: Any = None
+        stable_since = time.monotonic()
+        while time.monotonic() < deadline and not rospy.is_shutdown():
+            state = master.getSystemState()
+            pubs, subs, _srvs = state
+            if state != last_state:
+                last_state, stable_since = state, time.monotonic()
+            publishers = {topic: set(nodes) for topic, nodes in pubs}
+            pending = [] if time.monotonic() - stable_since >= 1.0 else ["(the ROS graph is still changing)"]
+            for topic, nodes in subs:
+                for sub in nodes:
+                    if sub not in watched:
+                        continue
+                    want = {n for n in publishers.get(topic, set()) if n in watched}
+                    if not want:
+                        continue
+                    try:
+                        info = xmlrpc.client.ServerProxy(uri(sub)).getBusInfo(rospy.get_name())[2]
+                        # the other end is a node name (roscpp) or its XML-RPC URI (rospy)
+                        have = {str(c[1]).rstrip("/") for c in info if c[2] == "i" and c[4] == topic and c[5]}
+                        missing = [n for n in sorted(want) if n not in have and uri(n) not in have]
+                    except (OSError, rosgraph.MasterError, xmlrpc.client.Error):
+                        missing = ["?"]
+                    pending += [f"{sub} {topic} <- {n}" for n in missing]
+            if not pending:
+                return []
+            time.sleep(0.1)
+        return pending
+
+    def _settle_wait(self, what: str) -> None:
+        """Determinism (issue 9): wait until the run's processes are idle; a timeout only warns."""
+        if self._settle is None or self._lockstep_denied:
+            return
+        if not self._settle_started:
+            if what == "before the next grant":
+                self._settle_first_grant()
+            return
+        if not self._settle.wait(rospy.is_shutdown) and not rospy.is_shutdown():
+            rospy.logwarn_throttle(
+                10.0,
+                "lockstep settle: the run's processes were still busy after %.0f s (%s); going on, "
+                "this run may not be reproducible (%d timeouts so far)",
+                self._settle.timeout_s,
+                what,
+                self._settle.stats.timeouts,
+            )
+        if self._awaiting_ack:
+            self._grant_sent_at = time.monotonic()  # our own wait is not the SITL being late
+
     def _send_grant(self, now: float) -> None:
+        self._settle_wait("before the next grant")
         self.link.send_sim_step(self.cfg.lockstep.steps_per_grant)
         self._awaiting_ack = True
         self._grant_sent_at = now
@@ -378,7 +504,11 @@ class SimBridgeNode:
         t = state.sim_time_s
         self._update_rtf(now, t)
         self._last_state_wall = now
+        # Determinism: the state's MAVLink telemetry reaches its clients before ROS time moves, and the
+        # reactions to the new time (timers) finish before the state's data is published.
+        self._settle_wait("before /clock")
         self.pub_clock.publish(conv.clock(t))
+        self._settle_wait("after /clock")
         want_det = self.pub_det.get_num_connections() > 0 or not self.cfg.publish.only_when_subscribed
         out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
         cfg = self.cfg
