@@ -8,12 +8,15 @@ from pathlib import Path
 import pytest
 
 from uav_autonomy.core.scenario_config import (
+    DepthSource,
     MissionKind,
     RecordingSpec,
     StopCriteria,
     Strategy,
     TimeMode,
+    effective_yaml,
     load_scenario,
+    played_topics,
     recorded_topics,
 )
 from uav_common.config import ConfigError
@@ -96,6 +99,31 @@ def test_all_zero_weights_rejected(tmp_path: Path) -> None:
         load_scenario(path)
 
 
+def test_negative_weight_allowed_but_not_nan(tmp_path: Path) -> None:
+    ok = write(tmp_path, "name: x\nmission: loiter\nautonomy:\n  weights: {age: -1, frontier: 1}\n")
+    assert load_scenario(ok).autonomy.weights["age"] == -1.0
+    bad = write(tmp_path, "name: x\nmission: loiter\nautonomy:\n  weights: {age: .nan}\n")
+    with pytest.raises(ConfigError, match="NaN"):
+        load_scenario(bad)
+
+
+def test_deterministic_needs_lockstep(tmp_path: Path) -> None:
+    path = write(tmp_path, "name: x\nmission: loiter\ntime: {mode: free, deterministic: true}\n")
+    with pytest.raises(ConfigError, match="lockstep"):
+        load_scenario(path)
+
+
+def test_effective_yaml_loads_anywhere(tmp_path: Path) -> None:
+    s = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    out = tmp_path / "elsewhere" / "scenario.yaml"
+    out.parent.mkdir()
+    out.write_text(effective_yaml(s))
+    again = load_scenario(out)
+    assert again.world_config_path == s.world_config_path
+    same_world = replace(s.world, config=s.world_config_path)
+    assert replace(again, source=None) == replace(s, source=None, world=same_world)
+
+
 def test_missing_file_says_so(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="not found"):
         load_scenario(tmp_path / "nope.yaml")
@@ -117,12 +145,22 @@ def test_overrides_apply_and_validate(tmp_path: Path) -> None:
 
 
 def test_recorded_topics_presets() -> None:
-    report = recorded_topics(RecordingSpec())
-    replay = recorded_topics(RecordingSpec(preset="replay", extra_topics=("/extra", "/clock")))
+    s = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    report = recorded_topics(s)
+    replay = recorded_topics(replace(s, recording=RecordingSpec(preset="replay", extra_topics=("/extra", "/tf"))))
     assert "/scenario/metrics" in report
     assert "/tf" not in report
+    assert "/clock" not in report  # rosbag play --clock makes it
     assert set(report) < set(replay)
-    assert replay.count("/clock") == 1
+    assert replay.count("/tf") == 1
     assert "/extra" in replay
+    assert "/cameras/nadir/points" in replay  # ground-truth depth: the map camera's cloud
+    estimated = replace(s, depth_source=DepthSource.ESTIMATED, recording=RecordingSpec(preset="replay"))
+    assert "/cameras/nadir/depth/image_raw" in recorded_topics(estimated)
+    assert "/cameras/nadir/points" not in recorded_topics(estimated)
+    # a replay plays what the regenerating nodes read, never what they write
+    played = played_topics(s)
+    assert "/cameras/nadir/points" in played
+    assert not {"/map_server/layers", "/autonomy/features", "/scenario/metrics", "/scenario/tracks"} & set(played)
     with pytest.raises(ValueError, match="preset"):
         replace(RecordingSpec(), preset="everything")

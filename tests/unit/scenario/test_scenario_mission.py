@@ -1,4 +1,4 @@
-"""Mission logic: stop criteria, confirmation gate, person placement."""
+"""Mission logic: stop criteria, confirmation gate, resuming after a controller yield."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from uav_autonomy.core.scenario_config import PersonSpec, StopCriteria, load_scenario
-from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.core.scenario_config import StopCriteria, load_scenario
 from uav_autonomy.core.scenario_mission import (
     ConfirmationGate,
     Phase,
@@ -16,8 +15,8 @@ from uav_autonomy.core.scenario_mission import (
     check_stop,
     controller_state_for,
     flying_phase,
-    place_person,
     point_in_polygon,
+    resume_needed,
 )
 from uav_autonomy.core.scoring_types import Detection
 
@@ -79,17 +78,28 @@ def test_point_in_polygon() -> None:
     assert not point_in_polygon(15, 5, square)
 
 
-def test_person_placement_is_seeded_and_inside() -> None:
-    region = ((-50.0, -300.0), (50.0, -300.0), (50.0, -200.0), (-50.0, -200.0))
-    a = place_person(PersonSpec(placement_seed=3, region_m=region))
-    b = place_person(PersonSpec(placement_seed=3, region_m=region))
-    c = place_person(PersonSpec(placement_seed=4, region_m=region))
-    assert a == b
-    assert a != c
-    assert point_in_polygon(*a, region)
-    assert place_person(PersonSpec(position_m=(1.0, 2.0))) == (1.0, 2.0)
-    with pytest.raises(ScenarioError, match="no room"):
-        place_person(PersonSpec(region_m=((-5.0, -5.0), (5.0, -5.0), (5.0, 5.0))))
+def test_gate_confirms_only_the_person_of_interest() -> None:
+    gate = ConfirmationGate(needed=2, window_s=5.0, instance_id=42)
+    other = Detection(7, "person", 1.0, (0, 0, 5, 5), 50.0, 1.0, (10.0, 0.0, 0.0))
+    assert gate.update(1.0, (other,)) is None
+    assert gate.update(2.0, (other,)) is None  # someone else, however often
+    unknown = Detection(0, "person", 0.8, (0, 0, 5, 5), 50.0, 1.0, (30.0, 0.0, 0.0))
+    assert gate.update(3.0, (unknown,)) is None
+    found = gate.update(4.0, (unknown,))  # a detector that cannot tell people apart counts
+    assert found is not None
+    assert found.position_m[0] == pytest.approx(30.0)
+
+
+def test_resume_after_a_yield_in_the_air_only() -> None:
+    args = {"in_air": True, "link_ok": True, "autopilot_mode": "AUTO.LOITER"}
+    assert resume_needed(Phase.LOITERING, "IDLE", **args)
+    assert resume_needed(Phase.HOLDING, "IDLE", **args)
+    assert not resume_needed(Phase.LOITERING, "AUTONOMOUS", **args)
+    assert not resume_needed(Phase.TAKEOFF, "IDLE", **args)
+    assert not resume_needed(Phase.DONE, "IDLE", **args)
+    assert not resume_needed(Phase.SEARCHING, "IDLE", **{**args, "in_air": False})
+    assert not resume_needed(Phase.SEARCHING, "IDLE", **{**args, "link_ok": False})
+    assert not resume_needed(Phase.SEARCHING, "IDLE", **{**args, "autopilot_mode": "AUTO.RTL"})
 
 
 def test_phases_and_controller_states() -> None:

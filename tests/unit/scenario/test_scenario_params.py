@@ -2,18 +2,30 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import yaml
 
 from uav_autonomy.core.controller import ControllerConfig
 from uav_autonomy.core.features import FeatureConfig
 from uav_autonomy.core.mcdm import GoalSelectorConfig
 from uav_autonomy.core.planning import PlannerConfig
-from uav_autonomy.core.scenario_config import load_scenario
+from uav_autonomy.core.scenario_config import TimeMode, TimeSpec, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
-from uav_autonomy.core.scenario_params import node_params, scripted_request
+from uav_autonomy.core.scenario_params import (
+    RunContext,
+    bridge_cameras,
+    lockstep_steps,
+    node_params,
+    scripted_request,
+    sitl_capacity_mah,
+)
 from uav_autonomy.ros.autonomy_params import load_section
+from uav_common.config import load_yaml_mapping
 
 REPO = Path(__file__).resolve().parents[3]
 SCENARIOS = sorted((REPO / "config" / "scenarios").glob("*.yaml"))
@@ -57,3 +69,50 @@ def test_scripted_requests() -> None:
 def test_unknown_node_is_an_error() -> None:
     with pytest.raises(ScenarioError, match="no settings for node 'nope'"):
         node_params(load_scenario(REPO / "config/scenarios/loiter.yaml"), "nope")
+
+
+def test_bridge_map_server_and_lockstep_settings(tmp_path: Path) -> None:
+    sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    person = {"name": "person_0000", "instance_id": 77, "x_m": 10.0, "y_m": -200.0}
+    ctx = RunContext(run_dir=str(tmp_path), world_yaml="/w.yaml", person=person)
+    bridge = node_params(sar, "sim_bridge", ctx)
+    assert bridge["object_poses"] == {"person_0000": [10.0, -200.0, 0.0]}
+    assert bridge["detections"]["max_range_m"] == 100.0
+    assert bridge["lockstep"] == {"role": "off"}
+    assert bridge["world"] == "/w.yaml"
+    lock = replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.1))
+    assert node_params(lock, "sim_bridge", ctx)["lockstep"] == {"role": "master", "steps_per_grant": 25}
+    assert lockstep_steps(replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.02))) == 5
+    with pytest.raises(ScenarioError, match="whole number"):
+        lockstep_steps(replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.003)))
+    assert node_params(sar, "mission_manager", ctx) == {"person": person}
+    base = load_yaml_mapping(REPO / "config" / "map_server.yaml")
+    ms = node_params(sar, "map_server", replace(ctx, map_server_base=base))
+    assert set(base) <= set(ms)  # the launch file sets this as the node's whole namespace
+    assert ms["autosave"]["path"] == f"{tmp_path}/map_autosave.ot"
+    assert ms["autosave"]["interval_s"] == base["autosave"]["interval_s"]
+    assert ms["resolution"] == sar.map.resolution_m
+    cams = bridge_cameras(load_yaml_mapping(REPO / "config" / "sim_bridge.yaml"), sar)
+    assert cams["nadir"]["pitch_deg"] == 90.0
+    assert cams["forward"]["pitch_deg"] == 25.0
+    assert cams["nadir"]["aspect"] == pytest.approx(0.75)
+    assert (
+        sitl_capacity_mah(sar, REPO / "config" / "sitl.yaml")
+        == load_yaml_mapping(REPO / "config" / "sitl.yaml")["battery"]["capacity_mah"]
+    )
+    assert sitl_capacity_mah(sar, tmp_path / "missing.yaml") == 4000.0
+
+
+def test_scenario_params_cli_prints_yaml_or_fails(tmp_path: Path) -> None:
+    cmd = [sys.executable, str(REPO / "catkin_ws/src/uav_autonomy/nodes/scenario_params")]
+    ok = subprocess.run(
+        [*cmd, str(REPO / "config/scenarios/loiter.yaml"), "goal_selector", "__name:=x"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert yaml.safe_load(ok.stdout)["weights"]["frontier"] == 1.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nmission: loiter\nstop: {time_limt_s: 3}\n")
+    fail = subprocess.run([*cmd, str(bad), "goal_selector"], capture_output=True, text=True, check=False)
+    assert fail.returncode == 1
+    assert "time_limt_s" in fail.stderr

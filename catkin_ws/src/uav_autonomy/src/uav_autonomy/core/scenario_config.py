@@ -143,7 +143,8 @@ class TargetSpec:
 
 @dataclass(frozen=True)
 class AutonomySpec:
-    #: Feature weights of the MCDM score (0 = feature off).
+    #: Feature weights of the MCDM score (0 = feature off; negative = avoid: e.g. ``age: -1`` sends the
+    #: drone to cells seen long ago, since the age feature is 1 for a cell seen just now).
     weights: dict[str, float] = field(
         default_factory=lambda: {"age": 1.0, "frontier": 1.0, "target": 1.0, "drone": 1.0}
     )
@@ -161,11 +162,11 @@ class AutonomySpec:
         if unknown:
             msg = f"unknown feature weight(s) {unknown}; known: {', '.join(FEATURE_NAMES)}"
             raise ValueError(msg)
-        if any(w < 0 or not math.isfinite(w) for w in self.weights.values()):
-            msg = f"weights must be finite and >= 0, got {self.weights}"
+        if not all(math.isfinite(w) for w in self.weights.values()):
+            msg = f"weights must be finite, got {self.weights}"
             raise ValueError(msg)
-        if not any(w > 0 for w in self.weights.values()):
-            msg = "at least one feature weight must be > 0"
+        if not any(w != 0 for w in self.weights.values()):
+            msg = "at least one feature weight must be non-zero"
             raise ValueError(msg)
         for name in ("cruise_buffer_m", "cruise_speed_mps", "takeoff_alt_m", "age_half_life_s"):
             if getattr(self, name) <= 0:

@@ -141,6 +141,7 @@ def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         "map_camera": scenario.map.camera,
         "camera_pitch_deg": {name: float(c["pitch_deg"]) for name, c in cams.items()},
         "map_camera_hfov_deg": float(cams[scenario.map.camera]["hfov_deg"]) if scenario.map.camera in cams else 90.0,
+        "map_camera_aspect": float(cams[scenario.map.camera]["aspect"]) if scenario.map.camera in cams else 0.75,
     }
 
 
@@ -252,5 +253,10 @@ def bridge_cameras(bridge_config: Mapping[str, Any], scenario: Scenario) -> dict
         hfov = cam.get("hfov_deg")
         if hfov is None and cam.get("fx"):
             hfov = math.degrees(2.0 * math.atan(float(cam.get("width", 640)) / 2.0 / float(cam["fx"])))
-        out[str(name)] = {"pitch_deg": float(rpy[1]), "hfov_deg": float(hfov if hfov is not None else 90.0)}
+        aspect = float(cam.get("height", 480)) / float(cam.get("width", 640))
+        out[str(name)] = {
+            "pitch_deg": float(rpy[1]),
+            "hfov_deg": float(hfov if hfov is not None else 90.0),
+            "aspect": aspect,
+        }
     return out

@@ -27,6 +27,7 @@ __all__ = [
     "band_of",
     "battery_use",
     "bbox_iou",
+    "coverage_efficiency",
     "downsample_grid",
     "mapped_area_m2",
     "match_detections",
@@ -140,6 +141,32 @@ def voxel_accuracy(map_keys: IntArray, truth_keys: IntArray) -> VoxelAccuracy:
         n_common=common,
         iou_observed=common / union_seen if union_seen else math.nan,
     )
+
+
+@dataclass(frozen=True)
+class Coverage:
+    swath_m: float
+    speed_mps: float
+    limit_m2_per_s: float
+    efficiency: float
+
+
+def coverage_efficiency(
+    mapped_m2: float, airborne_s: float, *, swath_m: float, along_m: float, speed_mps: float
+) -> Coverage:
+    """Coverage rate against the physical limit of a nadir camera sweeping the ground.
+
+    The limit is ``swath width x cruise speed`` (m²/s). What the camera sees without moving
+    (one footprint, ``swath_m x along_m``) is not coverage *rate*, so it is taken out:
+    ``efficiency = max(0, mapped - footprint) / airborne_s / limit``; a straight pass at
+    the cruise speed scores about 1, overlapping tracks, turns and hovering less.
+    NaN when a term is unknown.
+    """
+    limit = swath_m * speed_mps
+    if not (math.isfinite(limit) and limit > 0 and airborne_s > 0):
+        return Coverage(swath_m, speed_mps, limit if math.isfinite(limit) else math.nan, math.nan)
+    swept = max(0.0, mapped_m2 - swath_m * along_m)
+    return Coverage(swath_m, speed_mps, limit, swept / airborne_s / limit)
 
 
 def mapped_area_m2(layers: GridSnapshot, bounds_m: tuple[float, float, float, float]) -> float:

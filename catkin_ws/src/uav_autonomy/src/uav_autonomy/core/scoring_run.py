@@ -25,6 +25,7 @@ from uav_autonomy.core.scoring_metrics import (
     band_label,
     band_of,
     battery_use,
+    coverage_efficiency,
     mapped_area_m2,
     match_detections,
     mean_cell_age_s,
@@ -118,6 +119,8 @@ class RunScorer:
     swath_m_per_m: float = 0.0
     start_t_s: float = math.nan
     camera_pitch_deg: dict[str, float] = field(default_factory=lambda: {"nadir": 90.0, "forward": 25.0})
+    #: Along-track over across-track footprint of the map camera (image height / width for a nadir camera).
+    footprint_aspect: float = 0.75
     _poses: list[PoseSample] = field(default_factory=list)
     _agl: list[float] = field(default_factory=list)
     _distance_m: float = 0.0
@@ -369,6 +372,19 @@ class RunScorer:
 
     # ---- reading -------------------------------------------------------------------------
 
+    def _cruise_speed_mps(self, now_s: float) -> float:
+        """90th percentile of the horizontal ground speed while airborne (the speed legs are flown at)."""
+        if self._takeoff_t_s is None or len(self._poses) < 3:
+            return math.nan
+        pts = np.array([(p.t_s, p.position_m[0], p.position_m[1]) for p in self._poses if p.t_s <= now_s])
+        pts = pts[pts[:, 0] >= self._takeoff_t_s]
+        if len(pts) < 3:
+            return math.nan
+        dt = np.diff(pts[:, 0])
+        ok = dt > 1e-6
+        speeds = np.hypot(np.diff(pts[:, 1]), np.diff(pts[:, 2]))[ok] / dt[ok]
+        return float(np.percentile(speeds, 90)) if speeds.size else math.nan
+
     def _airborne_s(self, now_s: float) -> float:
         """Time from the first pose 1 m above the ground to ``now_s`` (or the last record, if earlier)."""
         if self._takeoff_t_s is None:
@@ -432,8 +448,13 @@ class RunScorer:
         airborne_s = self._airborne_s(now_s)
         mapped_pct = 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
         coverage_rate = self._mapped_m2 / airborne_s if airborne_s > 0 else math.nan
-        mean_alt = alt.mean_m
-        limit = self.swath_m_per_m * mean_alt * self.cruise_speed_mps if self.swath_m_per_m else math.nan
+        cov = coverage_efficiency(
+            self._mapped_m2,
+            airborne_s,
+            swath_m=self.swath_m_per_m * alt.mean_m,
+            along_m=self.swath_m_per_m * self.footprint_aspect * alt.mean_m,
+            speed_mps=self._cruise_speed_mps(now_s),
+        )
         acc = self._map_accuracy
         out: dict[str, Any] = {
             "time": {
@@ -449,8 +470,11 @@ class RunScorer:
                 "mapped_m2": self._mapped_m2,
                 "mapped_pct": mapped_pct,
                 "rate_m2_per_s": coverage_rate,
-                "swath_limit_m2_per_s": limit,
-                "efficiency": coverage_rate / limit if limit and math.isfinite(limit) else math.nan,
+                "cruise_speed_mps": cov.speed_mps,
+                "configured_cruise_speed_mps": self.cruise_speed_mps,
+                "swath_m": cov.swath_m,
+                "swath_limit_m2_per_s": cov.limit_m2_per_s,
+                "efficiency": cov.efficiency,
             },
             "map_accuracy": {
                 "t_s": self._map_accuracy_t_s,

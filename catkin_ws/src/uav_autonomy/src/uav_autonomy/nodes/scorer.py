@@ -118,6 +118,7 @@ class ScorerNode:
         person: dict[str, Any],
         camera_pitch_deg: dict[str, float],
         map_camera_hfov_deg: float = 90.0,
+        map_camera_aspect: float = 0.75,
         world_cache_dir: Path | None,
         map_server_ns: str = "/map_server",
     ) -> None:
@@ -136,6 +137,7 @@ class ScorerNode:
             tracked_camera=search.camera if search else "forward",
             cruise_speed_mps=scenario.autonomy.cruise_speed_mps,
             swath_m_per_m=swath_width_m(1.0, map_camera_hfov_deg),
+            footprint_aspect=map_camera_aspect,
             camera_pitch_deg=dict(camera_pitch_deg) or {"nadir": 90.0, "forward": 25.0},
         )
         self.person = person
@@ -470,6 +472,7 @@ def main() -> None:
         person=dict(run.get("person") or {}),
         camera_pitch_deg={str(k): float(v) for k, v in (run.get("camera_pitch_deg") or {}).items()},
         map_camera_hfov_deg=float(run.get("map_camera_hfov_deg", 90.0)),
+        map_camera_aspect=float(run.get("map_camera_aspect", 0.75)),
         world_cache_dir=Path(cache_text).expanduser() if cache_text else None,
         map_server_ns=str(rospy.get_param("~map_server", "/map_server")),
     )

@@ -152,8 +152,10 @@ def _overrides(scenario: Scenario, args: argparse.Namespace) -> Scenario:
         stop = replace(stop, time_limit_s=args.time_limit or DEMO_SECONDS, wall_timeout_s=600.0)
     elif args.time_limit:
         stop = replace(stop, time_limit_s=args.time_limit)
-    if args.lockstep:
-        time_spec = replace(time_spec, mode=TimeMode.LOCKSTEP)
+    if args.lockstep or args.deterministic:
+        time_spec = replace(
+            time_spec, mode=TimeMode.LOCKSTEP, deterministic=args.deterministic or time_spec.deterministic
+        )
     if args.speed_factor:
         time_spec = TimeSpec(mode=TimeMode.FREE, speed_factor=args.speed_factor, step_s=time_spec.step_s)
     recording = scenario.recording
@@ -175,6 +177,9 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--demo", action="store_true", help=f"the make-demo run: {DEMO_SECONDS:g} simulated seconds")
     p.add_argument("--time-limit", type=float, help="override stop.time_limit_s (simulated seconds)")
     p.add_argument("--lockstep", action="store_true", help="run in lockstep (time.mode: lockstep)")
+    p.add_argument(
+        "--deterministic", action="store_true", help="lockstep, and the step master waits for the run to go idle"
+    )
     p.add_argument("--speed-factor", type=float, help="free-running at this speed factor")
     p.add_argument(
         "--record",
@@ -252,6 +257,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:  #
         interrupted = True
 
     old = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)  # e.g. `timeout`: stop the run, never orphan it
     progress = Progress()
     tty = out.isatty() and not args.quiet
     try:
@@ -280,6 +286,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:  #
     finally:
         _stop(proc)
         signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
     return _finish(run_dir, launch_log, progress, interrupted, out)
 
 

@@ -447,7 +447,8 @@ class SimBridgeNode:
                     if not want:
                         continue
                     try:
-                        info = xmlrpc.client.ServerProxy(uri(sub)).getBusInfo(rospy.get_name())[2]
+                        reply: Any = xmlrpc.client.ServerProxy(uri(sub)).getBusInfo(rospy.get_name())
+                        info: list[Any] = list(reply[2])
                         # the other end is a node name (roscpp) or its XML-RPC URI (rospy)
                         have = {str(c[1]).rstrip("/") for c in info if c[2] == "i" and c[4] == topic and c[5]}
                         missing = [n for n in sorted(want) if n not in have and uri(n) not in have]
