@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 import rospy
 from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import BatteryState, Image
 
@@ -161,6 +162,7 @@ class ScorerNode:
         self._seq = itertools.count()
         self._pending_lock = threading.Lock()
         self.end_s: float | None = None
+        self._finish_at_s: float | None = None
         self._next_tracking_s = -math.inf
         self._next_accuracy_s = -math.inf
         self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
@@ -197,6 +199,7 @@ class ScorerNode:
             queue_size=QUEUE,
         )
         sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=QUEUE)
+        sub("/clock", Clock, self.on_clock, queue_size=10)
         rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
         rospy.on_shutdown(self.finish)
         threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
@@ -305,9 +308,18 @@ class ScorerNode:
         if first_stop:
             with self._pending_lock:
                 self.end_s = t
-            # Final metrics at the stop instant (not whenever this callback runs), so a live run and its
-            # replay end on the same sample.
-            self.finish(at_s=t)
+            # The final metrics are taken at the stop instant (not whenever a callback runs), so a live run
+            # and its replay end on the same sample; records stamped up to the stop may still be on their
+            # way, so the summary is made at the first /clock 2 x HOLD_S later (on_clock), and the map is
+            # exported then: in a deterministic run the simulation waits for that.
+            self._finish_at_s = t + 2 * HOLD_S
+
+    def on_clock(self, msg: Clock) -> None:
+        at = self._finish_at_s
+        if at is None or self.finished or msg.clock.to_sec() < at:
+            return
+        assert self.end_s is not None
+        self.finish(at_s=self.end_s)
 
     def on_tick(self, _event: rospy.timer.TimerEvent) -> None:
         now = rospy.get_time()
@@ -433,12 +445,7 @@ class ScorerNode:
         with self._finish_lock:
             if self.finished:
                 return
-            now = at_s if at_s is not None else rospy.get_time()
-            if at_s is not None:
-                # Let records stamped up to the stop arrive (the simulation, or the bag, runs on).
-                deadline = time.monotonic() + 10.0
-                while rospy.get_time() < at_s + 2 * HOLD_S and time.monotonic() < deadline and not rospy.is_shutdown():
-                    time.sleep(0.05)
+            now = at_s if at_s is not None else (self.end_s if self.end_s is not None else rospy.get_time())
             self._flush(now)
             if now > 0 and not rospy.is_shutdown():
                 self._map_accuracy(now, wait=True)
