@@ -172,7 +172,12 @@ class SimBridgeCheck(unittest.TestCase):
         self.assertTrue(all(g.fields["param1"] == 5 for g in grants))
 
     def test_2_odometry_and_tf_follow_the_sitl(self) -> None:
-        odom = self.inbox.wait("/uav/ground_truth/odom", 10)
+        # The tf listener may have subscribed after the first odometry went out: make sure
+        # the buffer holds transforms, then check an odometry message published after that.
+        self.tf_buffer.lookup_transform("map", "base_link", rospy.Time(0), rospy.Duration(10.0))
+        with self.inbox.lock:
+            seen = self.inbox.count.get("/uav/ground_truth/odom", 0)
+        odom = self.inbox.wait("/uav/ground_truth/odom", seen + 2)
         t = odom.header.stamp.to_sec()
         self.assertEqual(odom.header.frame_id, "map")
         self.assertEqual(odom.child_frame_id, "base_link")
