@@ -119,3 +119,37 @@ def test_global_int_setpoint() -> None:
     bad = setpoint_from_global_int(MavFrame.GLOBAL_INT, POS_YAW, lat, lon, math.inf, (0,) * 3, (0,) * 3, 0, 0,
                                    projection=proj)  # fmt: skip
     assert isinstance(bad, OffboardRejection)
+
+
+def test_attitude_law_aligns_the_thrust_axis_before_the_heading() -> None:
+    # the setpoint: tilted 15 deg nose down (accelerating) and the heading reversed
+    tilt = math.radians(15.0)
+    pitched = (math.cos(-tilt / 2), 0.0, math.sin(-tilt / 2), 0.0)  # about body y
+    yaw_half = quat_from_yaw(math.pi - 0.05)
+    w1, x1, y1, z1 = yaw_half
+    w2, x2, y2, z2 = pitched
+    q_sp = (
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    )
+    p, q, r = attitude_rate_setpoint(quat_from_yaw(0.0), q_sp, NAN, GAINS)
+    # the roll/pitch demand is as large as for the tilt error alone: the heading error adds none
+    p0, q0, _ = attitude_rate_setpoint(quat_from_yaw(0.0), _tilted_like(q_sp), NAN, GAINS)
+    assert math.hypot(p, q) == pytest.approx(math.hypot(p0, q0), rel=1e-6)
+    assert r > 0, "turns towards the heading, about the thrust axis"
+    # a pure heading error never asks for roll or pitch, however large
+    p, q, r = attitude_rate_setpoint(quat_from_yaw(0.0), quat_from_yaw(3.1), NAN, GAINS)
+    assert (p, q) == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert r == pytest.approx(GAINS.max_rates_radps[2])
+
+
+def _tilted_like(q_sp: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The attitude with q_sp's thrust axis and heading 0 reached by the shortest tilt."""
+    w, x, y, z = q_sp
+    bz = (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+    c = (-bz[1], bz[0], 0.0)  # (0, 0, 1) x bz
+    qw = 1.0 + bz[2]
+    n = math.sqrt(qw * qw + c[0] ** 2 + c[1] ** 2)
+    return (qw / n, c[0] / n, c[1] / n, 0.0)

@@ -103,3 +103,28 @@ def test_battery_drain_matches_the_pack() -> None:
     expected_w = motors_w / v.cfg.battery.esc_efficiency + v.cfg.battery.avionics_power_w
     assert abs(b1.power_w - expected_w) < 0.05 * expected_w
     assert b1.voltage_v < b0.voltage_v
+
+
+def test_a_half_turn_while_setting_off_keeps_the_vehicle_level() -> None:
+    """Offboard: a new position setpoint 60 m behind the vehicle with the heading reversed at once
+    (what a waypoint follower sends). PX4 turns about the thrust axis (roll and pitch first); the
+    tilt must stay within what the acceleration needs, never a roll-over towards the horizon."""
+    v = make_vehicle()
+    take_off(v, 20.0, settle_s=3.0)
+    ap = v.autopilot
+    sp = Setpoint(pos=(-60.0, 0.0, -20.0), yaw_rad=math.pi)  # heading 0 now: behind, facing back
+    ap.offboard_setpoint(sp, v.t_s, v.t_s)
+    assert ap.set_mode(FlightMode.OFFBOARD) is MavResult.ACCEPTED
+    worst_tilt_deg = 0.0
+    t0 = v.t_s
+    while v.t_s - t0 < 6.0:
+        ap.offboard_setpoint(sp, v.t_s, v.t_s)
+        run(v, 0.02)
+        q, _ = v.fdm.attitude_and_rates()
+        w, x, y, z = q
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y)))))
+        worst_tilt_deg = max(worst_tilt_deg, tilt)
+    max_tilt = ap.params["MPC_TILTMAX_AIR"]
+    assert worst_tilt_deg <= max_tilt, f"tilted {worst_tilt_deg:.0f} deg during the turn (limit {max_tilt:g})"
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    assert abs(abs(yaw) - math.pi) < math.radians(5), f"heading {math.degrees(yaw):.0f} deg after 6 s"

@@ -329,24 +329,78 @@ class VelocityController:
         return q, thrust, (ax, ay, az)
 
 
-def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:
-    """Body rate setpoint (FRD, rad/s) from the attitude error, P control per axis."""
+def _qmul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _qconj(q: Quat) -> Quat:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def _body_z(q: Quat) -> Vec3:
+    """The body z axis expressed in the world frame (third column of the rotation matrix)."""
     w, x, y, z = q
-    sw, sx, sy, sz = q_sp
-    # q_err = conj(q) * q_sp
-    ew = w * sw + x * sx + y * sy + z * sz
-    ex = w * sx - x * sw - y * sz + z * sy
-    ey = w * sy + x * sz - y * sw - z * sx
-    ez = w * sz - x * sy + y * sx - z * sw
+    return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+def _shortest_rotation(u: Vec3, v: Vec3) -> Quat | None:
+    """Quaternion of the shortest rotation taking unit vector ``u`` onto ``v``; None when they oppose."""
+    dot = u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+    if dot < -1.0 + 1e-6:
+        return None
+    cx, cy, cz = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
+    w = 1.0 + dot
+    n = math.sqrt(w * w + cx * cx + cy * cy + cz * cz)
+    return (w / n, cx / n, cy / n, cz / n)
+
+
+def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:
+    """Body rate setpoint (FRD, rad/s) from the attitude error, with roll and pitch first.
+
+    PX4's multicopter attitude law (Brescianini, Hehn, D'Andrea 2013, "Nonlinear quadrocopter
+    attitude control"): the thrust axis is aligned by the shortest rotation ("reduced
+    attitude"), and only a fraction ``MC_YAW_P / mean(MC_ROLL_P, MC_PITCH_P)`` of the remaining
+    heading error is added. A large heading change therefore turns the vehicle about its thrust
+    axis instead of rolling it over on the way (a full-quaternion error would take the shortest
+    path in SO(3), tilting a quadrotor tens of degrees during a 180 degree yaw).
+    The error ``2 * imag(q^-1 q_d)`` times the roll/pitch gain gives the rates, clamped to the
+    ``MC_*RATE_MAX`` limits; a yaw-rate feed-forward is a rotation about the world z axis.
+    """
+    rp_gain = 0.5 * (gains.roll_p + gains.pitch_p)
+    yaw_w = min(1.0, max(0.0, gains.yaw_p / rp_gain)) if rp_gain > 0.0 else 1.0
+    reduced = _shortest_rotation(_body_z(q), _body_z(q_sp))
+    # world-frame rotation of the thrust axis, applied to the current attitude; when the thrust
+    # axes are exactly opposed there is no preferred path and the full attitude is used
+    q_red = q_sp if reduced is None else _qmul(reduced, q)
+    # the remaining rotation about the thrust axis, scaled by the yaw weight
+    mw, _mx, _my, mz = _qmul(_qconj(q_red), q_sp)
+    if mw < 0.0:
+        mw, mz = -mw, -mz
+    mw = min(1.0, max(-1.0, mw))
+    mz = min(1.0, max(-1.0, mz))
+    half = yaw_w * math.acos(mw)
+    half_z = yaw_w * math.asin(mz)
+    q_d = _qmul(q_red, (math.cos(half), 0.0, 0.0, math.sin(half_z)))
+    ew, ex, ey, ez = _qmul(_qconj(q), q_d)
     if ew < 0.0:
         ex, ey, ez = -ex, -ey, -ez
     mr, mp, my = gains.max_rates_radps
-    p = 2.0 * gains.roll_p * ex
-    qr = 2.0 * gains.pitch_p * ey
-    r = 2.0 * gains.yaw_p * ez
+    p = 2.0 * rp_gain * ex
+    qr = 2.0 * rp_gain * ey
+    r = 2.0 * rp_gain * ez
     if not math.isnan(yaw_rate_ff):
-        # feed-forward the yaw rate, expressed in the body frame (approximately along body z)
-        r += yaw_rate_ff
+        # a yaw rate about the world z axis, in body axes: the world z axis seen from the body
+        w, x, y, z = q
+        p += 2.0 * (x * z - w * y) * yaw_rate_ff
+        qr += 2.0 * (y * z + w * x) * yaw_rate_ff
+        r += (1.0 - 2.0 * (x * x + y * y)) * yaw_rate_ff
     # clamp to the rate limits (written out: this runs every step)
     p = mr if p > mr else (-mr if p < -mr else p)
     qr = mp if qr > mp else (-mp if qr < -mp else qr)
