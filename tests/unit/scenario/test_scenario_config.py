@@ -64,9 +64,18 @@ def test_baselines_share_the_sar_setup() -> None:
 
 
 def write(tmp_path: Path, text: str) -> Path:
+    """A scenario file in tmp_path; it flies in the repository's default world unless it says otherwise."""
+    if "world:" not in text:
+        text += f"world: {{config: {REPO / 'config/worlds/default.yaml'}}}\n"
     path = tmp_path / "s.yaml"
     path.write_text(text)
     return path
+
+
+def test_missing_world_file_names_it(tmp_path: Path) -> None:
+    path = write(tmp_path, "name: x\nmission: loiter\nworld: {config: nope.yaml}\n")
+    with pytest.raises(ConfigError, match=r"world.config nope.yaml does not exist"):
+        load_scenario(path)
 
 
 def test_unknown_key_names_file_and_key(tmp_path: Path) -> None:

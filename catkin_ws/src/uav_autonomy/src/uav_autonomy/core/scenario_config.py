@@ -419,7 +419,6 @@ def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
 #: scorer, the tracker and the feature evaluator read that the replay does not regenerate).
 REPLAYED_TOPICS = (
     "/uav/ground_truth/odom",
-    "/uav/sim_state",
     "/uav/battery",
     "/uav/controller/state",
     "/autonomy/goal_reason",
@@ -483,6 +482,12 @@ def load_scenario(path: Path, *, overrides: dict[str, Any] | None = None) -> Sce
         msg = f"{path}: 'source' is set by the loader, remove it from the file"
         raise ConfigError(msg)
     scenario = replace(scenario, source=path.resolve())
+    if not scenario.world_config_path.is_file():
+        msg = (
+            f"{path}: world.config {scenario.world.config} does not exist (looked for {scenario.world_config_path}; "
+            "relative paths are relative to the scenario file)"
+        )
+        raise ConfigError(msg)
     if overrides:
         try:
             scenario = replace(scenario, **overrides)

@@ -18,6 +18,9 @@ Parameters:
     ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
+    ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
+    recorded topic that has a publisher (plus a second to connect), so the bag holds the whole run (a replay
+    needs it);
     ``~run/person`` (dict, from ``scenario_params``): the person of interest ``{name, instance_id, x_m, y_m}``;
     ``~shutdown_on_stop`` (bool, default true): exit once the scorer has published its final metrics
     (``"final": true`` in ``summary_json``), at least ``~linger_s`` (float, 1.0) and at most
@@ -41,7 +44,7 @@ from geometry_msgs.msg import Point, PointStamped
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Header, String
 
-from uav_autonomy.core.scenario_config import MissionKind, Scenario, Strategy, load_scenario
+from uav_autonomy.core.scenario_config import MissionKind, Scenario, Strategy, load_scenario, recorded_topics
 from uav_autonomy.core.scenario_errors import ScenarioError
 from uav_autonomy.core.scenario_mission import (
     ConfirmationGate,
@@ -60,6 +63,8 @@ from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioSt
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest
 
 FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
+#: Wall seconds between the recorder subscribing to every topic and the run starting (connection set-up).
+RECORDER_CONNECT_S = 1.0
 
 
 class MissionManager:
@@ -100,6 +105,8 @@ class MissionManager:
         self.stop_wall_s: float | None = None
         self.flight_requested = False
         self.hold_requested = False
+        self.wait_for_recorder = False
+        self.recorder_ready_wall_s: float | None = None
         self.resumes = 0
         self.max_resumes = 10
         self.last_resume_wall = -math.inf
@@ -199,6 +206,9 @@ class MissionManager:
         if now <= 0:
             return
         if self.start_sim_s is None:
+            if self.wait_for_recorder and not self._recorder_listening():
+                rospy.loginfo_throttle(10.0, "mission_manager: waiting for rosbag record before starting the run")
+                return
             self.start_sim_s = now
         self.rtf_window.append((time.monotonic(), now))
         ctrl = self.controller
@@ -235,6 +245,25 @@ class MissionManager:
                 if not self.scorer_final:
                     rospy.logwarn(f"mission_manager: no final metrics from the scorer after {waited:.0f} s; ending")
                 rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
+
+    def _recorder_listening(self) -> bool:
+        """Is ``/record`` (rosbag) subscribed to every recorded topic that has a publisher, and has it had a
+        second to connect? Then the bag holds the run from its first message (a replay needs that)."""
+        import rosgraph  # noqa: PLC0415
+
+        try:
+            pubs, subs, _srvs = rosgraph.Master(rospy.get_name()).getSystemState()
+        except (rosgraph.MasterError, OSError):
+            return False
+        published = {topic for topic, _nodes in pubs}
+        recording = {topic for topic, nodes in subs if "/record" in nodes}
+        wanted = set(recorded_topics(self.scenario)) & published
+        if "/scenario/status" not in recording or not wanted <= recording:
+            self.recorder_ready_wall_s = None
+            return False
+        if self.recorder_ready_wall_s is None:  # subscribed; the TCP connections follow within a moment
+            self.recorder_ready_wall_s = time.monotonic()
+        return time.monotonic() - self.recorder_ready_wall_s >= RECORDER_CONNECT_S
 
     def _resume_if_yielded(self, ctrl: ControllerState | None) -> None:
         if ctrl is None or not resume_needed(
@@ -325,5 +354,6 @@ def main() -> None:
         max_linger_s=float(rospy.get_param("~max_linger_s", 30.0)),
         person_instance_id=int(person.get("instance_id", 0)),
     )
+    node.wait_for_recorder = bool(rospy.get_param("~wait_for_recorder", False))
     node.start()
     rospy.spin()

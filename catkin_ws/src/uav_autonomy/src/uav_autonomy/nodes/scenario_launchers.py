@@ -186,7 +186,9 @@ def play_main() -> None:
         )
     topics = [t for t in played_topics(scenario) if t in present]
     argv = [
+        # every played topic has a reader in the replay: wait for them, then give the others 3 s to connect
         "rosbag", "play", "--clock", "--quiet", f"--rate={args.rate:g}", "--delay=3", "--queue=2000",
+        "--wait-for-subscribers",
         str(args.bag), *ros, "--topics", *topics,
     ]  # fmt: skip
     _exec(prog, argv, args.print_only)

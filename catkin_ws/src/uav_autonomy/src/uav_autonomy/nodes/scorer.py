@@ -246,6 +246,13 @@ class ScorerNode:
             if self.end_s is None or t_s <= self.end_s:
                 heapq.heappush(self._pending, (t_s, next(self._seq), method, record))
 
+    def _flush_scored(self, upto_s: float) -> None:
+        """Score held records up to ``upto_s``, once the run's start is known (earlier records are dropped:
+        what happens before the mission starts is not part of the run, and a replay may not have it)."""
+        if self.start_s is None:
+            return
+        self._flush(upto_s)
+
     def _flush(self, upto_s: float) -> None:
         """Score every held record stamped up to ``upto_s``, in stamp order (arrival order on ties)."""
         batch = []
@@ -256,7 +263,7 @@ class ScorerNode:
             return
         with self.lock:
             for t_s, _seq, method, record in batch:
-                if self.end_s is not None and t_s > self.end_s:
+                if (self.end_s is not None and t_s > self.end_s) or (self.start_s is not None and t_s < self.start_s):
                     continue
                 try:
                     if method == "truth_detections":
@@ -326,10 +333,12 @@ class ScorerNode:
         if now <= 0 or self.finished or self._finish_lock.locked() or self.end_s is not None:
             return
         if now >= self._next_accuracy_s:
+            # In this callback, not in a thread: the value lands in the same row of every run (and in a
+            # deterministic run the simulation waits for the export).
             self._next_accuracy_s = now + self.scenario.scoring.map_accuracy_period_s
-            threading.Thread(target=self._map_accuracy, args=(now,), daemon=True).start()
+            self._map_accuracy(now, wait=True)
         scored_to = now - HOLD_S
-        self._flush(scored_to)
+        self._flush_scored(scored_to)
         tracking = now >= self._next_tracking_s
         if tracking:
             self._next_tracking_s = now + TRACKING_PERIOD_S
@@ -446,7 +455,7 @@ class ScorerNode:
             if self.finished:
                 return
             now = at_s if at_s is not None else (self.end_s if self.end_s is not None else rospy.get_time())
-            self._flush(now)
+            self._flush_scored(now)
             if now > 0 and not rospy.is_shutdown():
                 self._map_accuracy(now, wait=True)
             if now > 0:

@@ -5,6 +5,8 @@ ROS interface:
 Subscribes:
     ``~detections`` (uav_msgs/DetectionArray, default ``/detections/ground_truth``): only
     frames from ``~camera`` are tracked; detections need ``position`` (map ENU).
+    ``/scenario/status`` (uav_msgs/ScenarioStatus): the tracker starts afresh when the run starts and
+    ignores frames from before (so a live run and its replay track the same frames).
 Publishes:
     ``/scenario/tracks`` (uav_msgs/TrackArray): confirmed tracks after each frame, stamped
     with the frame's stamp (so the scorer pairs them with the ground truth of that image).
@@ -25,7 +27,7 @@ from uav_autonomy.core.scenario_errors import ScoringError
 from uav_autonomy.core.scoring_convert import detections_from_msg
 from uav_autonomy.core.tracking import PositionTracker, TrackerConfig
 from uav_autonomy.ros.scoring_msgs import tracks_msg
-from uav_msgs.msg import DetectionArray, TrackArray
+from uav_msgs.msg import DetectionArray, ScenarioStatus, TrackArray
 
 
 class TrackerNode:
@@ -33,14 +35,23 @@ class TrackerNode:
         self.camera = camera
         self.tracker = PositionTracker(config)
         self.pub: rospy.Publisher | None = None
+        self.run_start_s: float | None = None
 
     def start(self, detections_topic: str) -> None:
-        self.pub = rospy.Publisher("/scenario/tracks", TrackArray, queue_size=20)
-        rospy.Subscriber(detections_topic, DetectionArray, self.on_detections, queue_size=20)
+        self.pub = rospy.Publisher("/scenario/tracks", TrackArray, queue_size=200)
+        rospy.Subscriber(detections_topic, DetectionArray, self.on_detections, queue_size=200)
+        rospy.Subscriber("/scenario/status", ScenarioStatus, self.on_status, queue_size=10)
+
+    def on_status(self, msg: ScenarioStatus) -> None:
+        if self.run_start_s is None:
+            self.run_start_s = msg.header.stamp.to_sec() - msg.sim_time_s
+            self.tracker = PositionTracker(self.tracker.config)
 
     def on_detections(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         if frame.camera != self.camera or self.pub is None:
+            return
+        if self.run_start_s is None or frame.t_s < self.run_start_s:
             return
         try:
             tracks = self.tracker.update(frame.t_s, frame.detections)
