@@ -11,7 +11,7 @@ import pytest
 from bagkit import write_synthetic_run
 
 from uav_autonomy.core.report_data import read_run_bag
-from uav_autonomy.core.report_figures import FIGURES
+from uav_autonomy.core.report_figures import FIGURES, snapshot_columns
 from uav_autonomy.core.report_html import build_report, flatten_metrics
 from uav_autonomy.core.scenario_errors import BagReadError
 
@@ -91,3 +91,10 @@ def test_truncated_bag_fails_clearly(bag: Path, tmp_path: Path) -> None:
 def test_flatten_metrics() -> None:
     flat = dict(flatten_metrics({"a": {"b": 1, "c": {"d": 2.5}}, "e": [1, 2], "f": "x"}))
     assert flat == {"a.b": 1, "a.c.d": 2.5, "f": "x"}
+
+
+def test_map_snapshot_columns_pair_layers_and_features_taken_moments_apart() -> None:
+    # the scorer takes the layer and the feature snapshot as each arrives after a snapshot time
+    cols = snapshot_columns([10.0, 25.0, 26.0], [10.2, 25.1, 60.0])
+    assert cols == [(10.0, 0, 0), (25.0, 1, 1), (26.0, 2, None), (60.0, None, 2)]
+    assert snapshot_columns([], []) == []

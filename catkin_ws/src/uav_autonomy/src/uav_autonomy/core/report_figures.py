@@ -29,6 +29,7 @@ __all__ = [
     "camera_figure",
     "detection_figure",
     "map_snapshots_figure",
+    "snapshot_columns",
     "topdown_figure",
     "voxel_figure",
 ]
@@ -99,13 +100,41 @@ def camera_figure(run: RunData, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def snapshot_columns(
+    layer_times_s: list[float], feature_times_s: list[float], tolerance_s: float = 1.0
+) -> list[tuple[float, int | None, int | None]]:
+    """Pair layer and feature snapshots taken at (nearly) the same time into figure columns.
+
+    The scorer snapshots the map layers and the feature maps when each arrives after a snapshot
+    time, so the two stamps of one snapshot differ by up to a feature period. Returns
+    ``(t_s, layer index or None, feature index or None)`` in time order; a snapshot without a
+    partner within ``tolerance_s`` gets a column of its own.
+    """
+    used: set[int] = set()
+    out: list[tuple[float, int | None, int | None]] = []
+    for i, t in enumerate(layer_times_s):
+        best = min(
+            (j for j in range(len(feature_times_s)) if j not in used),
+            key=lambda j: abs(feature_times_s[j] - t),
+            default=None,
+        )
+        if best is not None and abs(feature_times_s[best] - t) <= tolerance_s:
+            used.add(best)
+            out.append((t, i, best))
+        else:
+            out.append((t, i, None))
+    out.extend((t, None, j) for j, t in enumerate(feature_times_s) if j not in used)
+    return sorted(out, key=lambda c: c[0])
+
+
 def map_snapshots_figure(run: RunData, path: Path) -> Path | None:
     """Elevation (top row) and combined score (bottom row) at each snapshot time."""
-    times = sorted({round(g.t_s, 1) for g in run.layers} | {round(g.t_s, 1) for g in run.features})
-    if not times:
+    columns = snapshot_columns([g.t_s for g in run.layers], [g.t_s for g in run.features])
+    if not columns:
         return None
-    layers = {round(g.t_s, 1): g for g in run.layers}
-    features = {round(g.t_s, 1): g for g in run.features}
+    times = [t for t, _, _ in columns]
+    layers = {t: run.layers[i] for t, i, _ in columns if i is not None}
+    features = {t: run.features[j] for t, _, j in columns if j is not None}
     all_elev = [g.layers["elevation_m"] for g in run.layers if "elevation_m" in g.layers]
     finite = np.concatenate([e[np.isfinite(e)] for e in all_elev]) if all_elev else np.zeros(0)
     vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
