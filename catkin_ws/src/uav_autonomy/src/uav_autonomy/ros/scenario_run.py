@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime as dt
+import json
 import math
 import os
 import shutil
@@ -82,10 +83,27 @@ class Progress:
         self.status: Any = None
         self.metrics: Any = None
         self.wall_start = time.monotonic()
+        #: (wall, sim) seconds at the first status of the running mission and at the stop.
+        self.first: tuple[float, float] | None = None
+        self.stopped: tuple[float, float] | None = None
 
     def on_status(self, msg: Any) -> None:
         with self.lock:
             self.status = msg
+            now = time.monotonic()
+            if self.first is None:
+                self.first = (now, float(msg.sim_time_s))
+            if msg.stop and self.stopped is None:
+                self.stopped = (now, float(msg.sim_time_s))
+
+    def pace(self) -> dict[str, float] | None:
+        """Wall and simulated seconds from the first status to the stop, and their ratio (the run's RTF)."""
+        with self.lock:
+            first, last = self.first, self.stopped
+        if first is None or last is None or last[0] <= first[0]:
+            return None
+        wall_s, sim_s = last[0] - first[0], last[1] - first[1]
+        return {"wall_s": round(wall_s, 3), "sim_s": round(sim_s, 3), "real_time_factor": round(sim_s / wall_s, 4)}
 
     def on_metrics(self, msg: Any) -> None:
         with self.lock:
@@ -310,6 +328,13 @@ def _finish(run_dir: Path, launch_log: Path, progress: Progress, interrupted: bo
         out.write("interrupted: stopping the run and building the report from what was recorded\n")
     elif not stopped:
         out.write(f"the run ended before a stop criterion; roslaunch log: {launch_log}\n{_tail(launch_log, 15)}\n")
+    pace = progress.pace()
+    if pace is not None:
+        (run_dir / "pace.json").write_text(json.dumps(pace) + "\n")
+        out.write(
+            f"simulated {pace['sim_s']:.1f} s in {pace['wall_s']:.1f} s wall "
+            f"(real-time factor {pace['real_time_factor']:.2f}x)\n"
+        )
     bag = run_dir / "run.bag"
     rc = 130 if interrupted else (0 if stopped else 1)
     if not bag.exists():
@@ -319,8 +344,6 @@ def _finish(run_dir: Path, launch_log: Path, progress: Progress, interrupted: bo
         run = read_run_bag(bag)
         metrics_path = run_dir / "metrics.json"
         if metrics_path.is_file():
-            import json  # noqa: PLC0415
-
             with contextlib.suppress(json.JSONDecodeError):
                 run.summary = json.loads(metrics_path.read_text())
         versions = {f"run: {k}": str(v) for k, v in (run.summary.get("versions") or {}).items()}
