@@ -58,7 +58,11 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
         ),
         (
             f"  mapped {f('coverage.mapped_pct', ' %', 2)} of the scene ({f('coverage.mapped_m2', ' m²', 0)}), "
-            f"coverage efficiency {f('coverage.efficiency', '', 3)}, map IoU {f('map_accuracy.iou', '', 3)}"
+            f"coverage efficiency {f('coverage.efficiency', '', 3)}"
+        ),
+        (
+            f"  map vs ground truth: IoU {f('map_accuracy.iou', '', 3)} over the scene, "
+            f"{f('map_accuracy.iou_observed', '', 3)} where mapped; precision {f('map_accuracy.precision', '', 3)}"
         ),
         (
             f"  flew {f('flight.distance_m', ' m', 0)}, min AGL {f('flight.agl_min_m', ' m')}, "
