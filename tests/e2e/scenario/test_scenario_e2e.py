@@ -144,8 +144,8 @@ def test_replay_reproduces_the_live_metrics() -> None:
     assert len(exact) > 30
     differ = {k: (live[k], again.get(k)) for k in exact if live[k] != again.get(k)}
     assert not differ, f"the replay scored differently: {differ}"
-    # the map is rebuilt by the map server from the recorded clouds; a live run in lockstep may drop a
-    # cloud when the map server falls behind (counted in /map_server/insert_stats), a replay at 1x does not
+    # the map is rebuilt by the map server from the recorded clouds (the live run is deterministic, so its
+    # map server inserted every cloud too); insertion threads and the map export's timing allow a little slack
     for key in ("coverage.mapped_pct", "map_accuracy.iou", "map_accuracy.precision", "map_accuracy.recall"):
         assert again[key] == pytest.approx(live[key], rel=0.05), key
     assert live["map_accuracy.precision"] > 0.9

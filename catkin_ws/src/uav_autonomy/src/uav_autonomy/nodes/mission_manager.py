@@ -261,6 +261,10 @@ class MissionManager:
         if "/scenario/status" not in recording or not wanted <= recording:
             self.recorder_ready_wall_s = None
             return False
+        if self.scenario.time.deterministic:
+            # No wall-clock wait: it would make the start step depend on the machine. The bridge starts
+            # simulation time only once /record is up and grants each step only when the run is idle.
+            return True
         if self.recorder_ready_wall_s is None:  # subscribed; the TCP connections follow within a moment
             self.recorder_ready_wall_s = time.monotonic()
         return time.monotonic() - self.recorder_ready_wall_s >= RECORDER_CONNECT_S

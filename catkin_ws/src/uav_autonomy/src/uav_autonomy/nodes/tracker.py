@@ -6,7 +6,8 @@ Subscribes:
     ``~detections`` (uav_msgs/DetectionArray, default ``/detections/ground_truth``): only
     frames from ``~camera`` are tracked; detections need ``position`` (map ENU).
     ``/scenario/status`` (uav_msgs/ScenarioStatus): the tracker starts afresh when the run starts and
-    ignores frames from before (so a live run and its replay track the same frames).
+    ignores frames from before (so a live run and its replay track the same frames); frames that
+    arrive before the first status are held and tracked once it comes, if they belong to the run.
 Publishes:
     ``/scenario/tracks`` (uav_msgs/TrackArray): confirmed tracks after each frame, stamped
     with the frame's stamp (so the scorer pairs them with the ground truth of that image).
@@ -20,6 +21,8 @@ The tracker never reads ground-truth ids: identities are its own (core: ``tracki
 from __future__ import annotations
 
 import sys
+import threading
+from collections import deque
 
 import rospy
 
@@ -29,6 +32,9 @@ from uav_autonomy.core.tracking import PositionTracker, TrackerConfig
 from uav_autonomy.ros.scoring_msgs import tracks_msg
 from uav_msgs.msg import DetectionArray, ScenarioStatus, TrackArray
 
+#: Frames kept while the run's start is unknown (a frame may arrive just before the first status).
+EARLY_FRAMES = 50
+
 
 class TrackerNode:
     def __init__(self, camera: str, config: TrackerConfig) -> None:
@@ -36,6 +42,8 @@ class TrackerNode:
         self.tracker = PositionTracker(config)
         self.pub: rospy.Publisher | None = None
         self.run_start_s: float | None = None
+        self.lock = threading.Lock()
+        self.early: deque[DetectionArray] = deque(maxlen=EARLY_FRAMES)
 
     def start(self, detections_topic: str) -> None:
         self.pub = rospy.Publisher("/scenario/tracks", TrackArray, queue_size=200)
@@ -43,11 +51,25 @@ class TrackerNode:
         rospy.Subscriber("/scenario/status", ScenarioStatus, self.on_status, queue_size=10)
 
     def on_status(self, msg: ScenarioStatus) -> None:
-        if self.run_start_s is None:
+        with self.lock:
+            if self.run_start_s is not None:
+                return
             self.run_start_s = msg.header.stamp.to_sec() - msg.sim_time_s
             self.tracker = PositionTracker(self.tracker.config)
+            # frames of the run that overtook the first status (separate connections are not ordered)
+            early = sorted(self.early, key=lambda m: m.header.stamp.to_sec())
+            self.early.clear()
+            for frame_msg in early:
+                self._track(frame_msg)
 
     def on_detections(self, msg: DetectionArray) -> None:
+        with self.lock:
+            if self.run_start_s is None:
+                self.early.append(msg)
+                return
+            self._track(msg)
+
+    def _track(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         if frame.camera != self.camera or self.pub is None:
             return
