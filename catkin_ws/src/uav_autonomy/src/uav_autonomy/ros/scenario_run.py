@@ -43,7 +43,7 @@ from uav_common.config import ConfigError
 
 __all__ = ["main", "scenario_yaml"]
 
-REPO_ROOT = Path(__file__).resolve().parents[5]
+REPO_ROOT = Path(__file__).resolve().parents[6]  # catkin_ws/src/uav_autonomy/src/uav_autonomy/ros -> repo
 #: The demo: loiter this many simulated seconds (``make demo``).
 DEMO_SECONDS = 90.0
 

@@ -115,7 +115,7 @@ def downsampled_layers_msg(msg: GridLayers, max_cells: int) -> GridLayers:
 
 def run_versions() -> dict[str, str]:
     """What produced a run: the checkout's commit, Python, ROS and the libraries behind the numbers."""
-    repo = Path(__file__).resolve().parents[5]
+    repo = Path(__file__).resolve().parents[6]
     out = {"python": platform.python_version(), "ros": os.environ.get("ROS_DISTRO", "unknown")}
     try:
         commit = subprocess.run(
