@@ -19,8 +19,8 @@ Parameters:
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
-    recorded topic that has a publisher (plus a second to connect), so the bag holds the whole run (a replay
-    needs it);
+    recorded topic that has a publisher (plus a wall second to connect, except in deterministic runs), so the
+    bag holds the whole run (a replay needs it);
     ``~run/person`` (dict, from ``scenario_params``): the person of interest ``{name, instance_id, x_m, y_m}``;
     ``~shutdown_on_stop`` (bool, default true): exit once the scorer has published its final metrics
     (``"final": true`` in ``summary_json``), at least ``~linger_s`` (float, 1.0) and at most
