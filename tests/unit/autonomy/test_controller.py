@@ -263,6 +263,38 @@ def test_failsafe_mode_change_yields_at_once() -> None:
     assert [a for t, a in rig.log if t > failsafe_s] == []  # it never fought the autopilot
 
 
+def test_failsafe_while_offboard_is_being_requested_is_not_overridden() -> None:
+    """Taking control back (HOLD from AUTO.LOITER): the autopilot accepts OFFBOARD but a geofence RTL
+    replaces it before the heartbeat shows OFFBOARD. A retry would cancel the failsafe: yield instead."""
+    rig = Rig(mode_retry_s=0.5)
+    rig.airborne()
+    rig.ap.mode = FlightMode.LOITER  # e.g. after an offboard-loss failsafe
+    rig.run_until(lambda: rig.ctl.state is ControllerState.IDLE, 5.0)
+    rig.ctl.request(ControllerState.HOLD, rig.now)
+    rig.run_until(lambda: any(isinstance(a, RequestMode) for t, a in rig.log if t >= rig.now), 5.0)
+    rig.ap.mode = FlightMode.RTL  # the failsafe, between our request and the next heartbeat
+    failsafe_s = rig.now
+    rig.tick()
+    assert rig.ctl.state is ControllerState.RTL
+    assert "yielded" in rig.ctl.status().last_event
+    rig.run_until(lambda: rig.ctl.state is ControllerState.IDLE, 30.0)  # mirrors RTL until landed
+    assert "landed and disarmed" in rig.ctl.status().last_event
+    assert [a for t, a in rig.log if t > failsafe_s] == []  # no retry, no setpoint: the failsafe ran
+
+
+def test_offboard_requested_from_rtl_by_the_user_is_still_retried() -> None:
+    """The vehicle was already in RTL when the user asked for HOLD: retrying that request is right."""
+    rig = Rig(mode_retry_s=0.5)
+    rig.airborne()
+    rig.ap.mode = FlightMode.RTL
+    rig.run_until(lambda: rig.ctl.state is ControllerState.RTL, 5.0)
+    rig.ap.reject_offboard = 1
+    rig.ctl.request(ControllerState.HOLD, rig.now)
+    rig.run_until(lambda: rig.ap.mode is FlightMode.OFFBOARD, 10.0)
+    rig.run(0.2)
+    assert rig.ctl.state is ControllerState.HOLD
+
+
 def test_pilot_mode_change_yields_to_idle() -> None:
     rig = Rig()
     rig.airborne()

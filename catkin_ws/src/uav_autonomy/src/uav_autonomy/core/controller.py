@@ -238,6 +238,8 @@ class _Engagement:
     last_arm_request_s: float | None = None
     armed_seen: bool = False
     takeoff_sent: bool = False
+    #: The autopilot's mode when OFFBOARD was first requested (a later RTL/LAND is a failsafe's, not ours).
+    mode_at_request: FlightMode | None = None
 
 
 @dataclass
@@ -544,13 +546,18 @@ class WaypointController:
     def _offboard_handshake(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action] | None:
         """Confirm OFFBOARD from the heartbeat, or request it once the pre-stream is long enough.
 
-        Returns the actions to add, or None after giving up (the state is then IDLE).
+        Returns the actions to add, or None after giving up (the state is then IDLE) or yielding to a failsafe.
         """
         cfg = self.config
         if t.mode is FlightMode.OFFBOARD:
             eng.offboard_confirmed = True
             self._event(f"autopilot confirmed {t.mode_name}")
             return []
+        if eng.mode_attempts > 0 and t.mode in (FlightMode.RTL, FlightMode.LAND) and t.mode is not eng.mode_at_request:
+            # A failsafe (or the pilot) sent the vehicle home or down while OFFBOARD was being requested,
+            # possibly after the autopilot had already accepted it: never fight that with a retry.
+            self._yield_to(t.mode, "autopilot switched while OFFBOARD was being requested (failsafe or pilot)")
+            return None
         first = eng.first_setpoint_s if eng.first_setpoint_s is not None else now_s
         enough = now_s - first >= cfg.prestream_s and eng.setpoints_sent >= math.ceil(10.0 * cfg.prestream_s)
         due = eng.last_mode_request_s is None or now_s - eng.last_mode_request_s >= cfg.mode_retry_s
@@ -561,6 +568,8 @@ class WaypointController:
             return None
         if eng.mode_attempts > 0:
             self._event(f"OFFBOARD not confirmed (autopilot in {t.mode_name}); retrying")
+        if eng.mode_attempts == 0:
+            eng.mode_at_request = t.mode
         eng.mode_attempts += 1
         eng.last_mode_request_s = now_s
         return [RequestMode(FlightMode.OFFBOARD)]
