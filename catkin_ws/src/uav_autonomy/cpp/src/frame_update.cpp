@@ -65,6 +65,27 @@ void radixSortByMorton(std::vector<MortonItem>& items, std::vector<MortonItem>& 
 
 namespace {
 
+/// One axis of the DDA's start (OctoMap's computeRayKeys arithmetic, float rounding of the half step
+/// included): the step direction, the ray parameter of the first voxel border and of one voxel.
+inline void initDdaAxis(const KeyGrid& grid, uint16_t key, double origin, double direction, double res, int& step,
+                        double& t_max, double& t_delta) {
+  if (direction > 0.0)
+    step = 1;
+  else if (direction < 0.0)
+    step = -1;
+  else
+    step = 0;
+  if (step != 0) {
+    double voxel_border = grid.toCoord(key);
+    voxel_border += static_cast<float>(step * res * 0.5);
+    t_max = (voxel_border - origin) / direction;
+    t_delta = res / std::fabs(direction);
+  } else {
+    t_max = std::numeric_limits<double>::max();
+    t_delta = std::numeric_limits<double>::max();
+  }
+}
+
 /// OctoMap's computeRayKeys (OcTreeBaseImpl.hxx, Amanatides & Woo DDA) with the same arithmetic, calling
 /// visit(key) for every free key: the origin's key first, the end's key excluded. Returns false if either
 /// end is outside the addressable key cube (OctoMap then adds nothing).
@@ -86,21 +107,7 @@ inline bool traceRay(const KeyGrid& grid, const Point3& origin, const Point3& en
   Key current = key_origin;
   const double res = grid.resolution();
   for (unsigned i = 0; i < 3; ++i) {
-    if (direction(i) > 0.0)
-      step[i] = 1;
-    else if (direction(i) < 0.0)
-      step[i] = -1;
-    else
-      step[i] = 0;
-    if (step[i] != 0) {
-      double voxel_border = grid.toCoord(current[i]);
-      voxel_border += static_cast<float>(step[i] * res * 0.5);
-      t_max[i] = (voxel_border - origin(i)) / direction(i);
-      t_delta[i] = res / std::fabs(direction(i));
-    } else {
-      t_max[i] = std::numeric_limits<double>::max();
-      t_delta[i] = std::numeric_limits<double>::max();
-    }
+    initDdaAxis(grid, current[i], origin(i), direction(i), res, step[i], t_max[i], t_delta[i]);
   }
   while (true) {
     unsigned dim;
@@ -221,21 +228,7 @@ inline bool markRay(const KeyGrid& grid, const Point3& origin, const Point3& end
   int endk[3];
   std::ptrdiff_t delta[3];  // cell index change of one step along each axis
   for (unsigned i = 0; i < 3; ++i) {
-    if (direction(i) > 0.0)
-      step[i] = 1;
-    else if (direction(i) < 0.0)
-      step[i] = -1;
-    else
-      step[i] = 0;
-    if (step[i] != 0) {
-      double voxel_border = grid.toCoord(key_origin[i]);
-      voxel_border += static_cast<float>(step[i] * res * 0.5);
-      t_max[i] = (voxel_border - origin(i)) / direction(i);
-      t_delta[i] = res / std::fabs(direction(i));
-    } else {
-      t_max[i] = std::numeric_limits<double>::max();
-      t_delta[i] = std::numeric_limits<double>::max();
-    }
+    initDdaAxis(grid, key_origin[i], origin(i), direction(i), res, step[i], t_max[i], t_delta[i]);
     cur[i] = key_origin[i];
     endk[i] = key_end[i];
     delta[i] = static_cast<std::ptrdiff_t>(step[i]) * static_cast<std::ptrdiff_t>(bm.stride[i]);
