@@ -30,6 +30,17 @@ from dataclasses import dataclass, field
 __all__ = ["Settle", "SettleStats"]
 
 
+def _state(stat_path: str) -> bytes:
+    """The one-letter state (``R``, ``S``, ``D``...) from a ``/proc/.../stat`` file; b"" if it is gone."""
+    try:
+        with open(stat_path, "rb") as fh:
+            raw = fh.read()
+    except OSError:
+        return b""
+    end = raw.rfind(b")")  # the command name may contain spaces and parentheses
+    return raw[end + 2 : end + 3]
+
+
 def _program(argv: list[str]) -> str:
     """The program a command line runs: argv[0]'s basename, or the script's for an interpreter."""
     if not argv or not argv[0]:
@@ -124,24 +135,9 @@ class Settle:
             for tid in tids:
                 if pid == me and int(tid) == own_tid:
                     continue  # the waiting thread itself
-                try:
-                    with open(f"/proc/{pid}/task/{tid}/stat", "rb") as fh:
-                        raw = fh.read()
-                except OSError:
-                    continue
-                end = raw.rfind(b")")
-                if raw[end + 2 : end + 3] in (b"R", b"D"):
+                if _state(f"/proc/{pid}/task/{tid}/stat") in (b"R", b"D"):
                     return True
-        for pid in self._softirq:
-            try:
-                with open(f"/proc/{pid}/stat", "rb") as fh:
-                    raw = fh.read()
-            except OSError:
-                continue
-            end = raw.rfind(b")")
-            if raw[end + 2 : end + 3] == b"R":
-                return True
-        return False
+        return any(_state(f"/proc/{pid}/stat") == b"R" for pid in self._softirq)
 
     def wait(self, abort: Callable[[], bool] | None = None) -> bool:
         """Block until idle; ``False`` when ``timeout_s`` passed first or ``abort()`` says so (shutdown)."""

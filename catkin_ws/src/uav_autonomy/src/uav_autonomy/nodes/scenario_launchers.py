@@ -44,15 +44,19 @@ def _fail(prog: str, message: str) -> None:
     sys.exit(2)
 
 
-def _ports(items: Sequence[str]) -> RunPorts:
+def _ports(prog: str, items: Sequence[str]) -> RunPorts:
+    """``--port NAME=PORT`` items -> the run's ports; a bad item exits with status 2 and says which."""
     data: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
-            msg = f"--port takes NAME=PORT, got {item!r}"
-            raise ScenarioError(msg)
+            _fail(prog, f"--port takes NAME=PORT, got {item!r}")
         data[name.strip()] = value.strip()
-    return RunPorts.from_mapping(data)
+    try:
+        return RunPorts.from_mapping(data)
+    except ScenarioError as err:
+        _fail(prog, str(err))
+        raise  # unreachable
 
 
 def _load(prog: str, path: Path) -> Scenario:
@@ -92,11 +96,7 @@ def sitl_main() -> None:
     p.add_argument("--no-router", action="store_true", help="the controller talks to the SITL's API link directly")
     args = p.parse_args(ours)
     scenario = _load(prog, args.scenario)
-    try:
-        ports = _ports(args.port)
-    except ScenarioError as err:
-        _fail(prog, str(err))
-        raise
+    ports = _ports(prog, args.port)
     args.run_dir.mkdir(parents=True, exist_ok=True)
     argv = sitl_argv(scenario, ports, params_file=args.run_dir / "sitl_params.json", router=not args.no_router)
     _exec(prog, argv, args.print_only)
@@ -107,11 +107,7 @@ def router_main() -> None:
     ours, _ros = _split_ros_args(sys.argv[1:])
     p = _parser(prog, scenario=False)
     args = p.parse_args(ours)
-    try:
-        ports = _ports(args.port)
-    except ScenarioError as err:
-        _fail(prog, str(err))
-        raise
+    ports = _ports(prog, args.port)
     args.run_dir.mkdir(parents=True, exist_ok=True)
     conf = args.run_dir / "router.conf"
     text = router_conf(ports, args.run_dir / "router")
