@@ -50,6 +50,37 @@ def test_cameras_follow_their_rates_and_consumers(engine_of) -> None:
     out = engine_of().step(_state(0.0, (0.0, 0.0, 40.0)), home=None, wanted=lambda n: False)
     assert sorted(c.camera.name for c in out.cameras) == ["forward", "nadir"]  # detections still need them
     assert all(c.detections is not None for c in out.cameras)
+    assert all(c.frame is None and c.depth_m is None for c in out.cameras)  # ... and only their instance ids
+
+
+def test_detection_only_render_detects_what_the_full_render_does(engine_of, small_world: World) -> None:
+    """With nothing but detections consumed, the cheap instance-only render (clipped past the detection
+    range) must register the same objects, boxes and visible pixels as the full render."""
+    eng_full, eng_cheap = engine_of(), engine_of()
+    targets = [*small_world.objects_of_class(ObjectClass.PERSON), *small_world.objects_of_class(ObjectClass.VEHICLE)]
+    seen, t = 0, 0.0
+    for k, obj in enumerate(targets[:8]):
+        ox, oy, oz = obj.pose.position_m
+        for dist_m in (25.0, 70.0, 95.0):
+            yaw = 0.7 * k  # approach from several sides, camera looking at the object
+            x, y = ox - dist_m * math.cos(yaw), oy - dist_m * math.sin(yaw)
+            t += 0.1
+            state = _state(t, (x, y, oz + 0.45 * dist_m), yaw=yaw)
+            full = eng_full.step(state, home=None, wanted=lambda n: True)
+            cheap = eng_cheap.step(state, home=None, wanted=lambda n: False)
+            assert len(full.cameras) == len(cheap.cameras) == 2
+            for a, b in zip(full.cameras, cheap.cameras, strict=True):
+                assert b.frame is None
+                da = {d.instance_id: d for d in a.detections or []}
+                db = {d.instance_id: d for d in b.detections or []}
+                assert da.keys() == db.keys(), (obj.name, dist_m, a.camera.name)
+                for iid, d in da.items():
+                    e = db[iid]
+                    assert abs(d.visible_pixels - e.visible_pixels) <= max(2, 0.01 * d.visible_pixels)
+                    assert abs(d.visible_fraction - e.visible_fraction) < 0.02
+                    assert (d.x_min, d.y_min, d.x_max, d.y_max) == pytest.approx((e.x_min, e.y_min, e.x_max, e.y_max), abs=1)
+                seen += obj.instance_id in da
+    assert seen >= 8  # the comparison saw the objects themselves, not just empty frames
 
 
 def test_noise_degrades_only_what_it_should_and_is_reproducible(engine_of) -> None:

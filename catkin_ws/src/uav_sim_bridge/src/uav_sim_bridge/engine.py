@@ -12,6 +12,7 @@ The engine must be used from the thread that created its renderer (GL rule).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,12 +41,16 @@ _GROUND_TOLERANCE_M = 0.5
 
 @dataclass(frozen=True)
 class CameraOutput:
-    """One rendered camera frame and what derives from it."""
+    """One rendered camera frame and what derives from it.
+
+    ``frame`` and ``depth_m`` are None when only the camera's detections are consumed: then
+    just the instance ids near enough to detect anything were rendered (several times cheaper).
+    """
 
     camera: CameraModel
     t_map_optical: RigidTransform
-    frame: RenderedFrame
-    depth_m: npt.NDArray[np.float32]  # degraded copy when noise is on, else frame.depth_m
+    frame: RenderedFrame | None
+    depth_m: npt.NDArray[np.float32] | None  # degraded copy when noise is on, else frame.depth_m
     detections: list[GroundTruthDetection] | None
 
 
@@ -92,6 +97,14 @@ class BridgeEngine:
         self._pose_noise = PoseNoise(cfg.noise.pose)
         self._previous_position: npt.NDArray[np.float64] | None = None
         self._touching: set[int] = set()
+        # Detection-only renders stop past the detection range plus the largest movable object:
+        # nothing farther can hide or be an object whose centre is in range.
+        largest_m = max((float(np.linalg.norm(o.size_m)) for o in self._objects.values()), default=0.0)
+        det_far_m = cfg.detections.max_range_m + largest_m + 1.0
+        self._detection_cameras = {
+            name: dataclasses.replace(cam, far_m=min(cam.far_m, max(det_far_m, 2.0 * cam.near_m)))
+            for name, cam in self.cameras.items()
+        }
         for name, (x, y, yaw_deg) in cfg.object_poses.items():
             self.move_object(name, x, y, None, math.radians(yaw_deg))
 
@@ -157,16 +170,27 @@ class BridgeEngine:
         for name, cam in self.cameras.items():
             if not self._schedules[name].due(state.sim_time_s):
                 continue
-            if not (wanted(name) or name in det_cams):
+            full = wanted(name)
+            if not (full or name in det_cams):
                 continue
             t_opt = cam.optical_pose(pose)
-            frame = self.renderer.render(cam, t_opt)
+            frame: RenderedFrame | None = None
+            depth: npt.NDArray[np.float32] | None = None
+            if full:
+                det_cam = cam
+                frame = self.renderer.render(cam, t_opt)
+                instance_id = frame.instance_id
+                depth = frame.depth_m
+                if cfg.noise.enabled:
+                    depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng)
+            else:
+                det_cam = self._detection_cameras[name]
+                instance_id = self.renderer.render_instances(det_cam, t_opt)
             dets = None
             if name in det_cams:
-                cands = visible_candidates(frame.instance_id, t_opt, self._objects, cfg.detections)
-                alone = self.renderer.unoccluded_pixel_counts(cam, t_opt, cands) if cands else {}
-                dets = ground_truth_detections(frame.instance_id, t_opt, self._objects, cfg.detections, alone)
-            depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng) if cfg.noise.enabled else frame.depth_m
+                cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
+                alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands) if cands else {}
+                dets = ground_truth_detections(instance_id, t_opt, self._objects, cfg.detections, alone)
             outputs.append(CameraOutput(cam, t_opt, frame, depth, dets))
         contacts = self.collisions.check(self._previous_position, state.position_m)
         self._previous_position = state.position_m.copy()

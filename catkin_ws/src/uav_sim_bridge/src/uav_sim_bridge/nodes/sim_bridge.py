@@ -536,10 +536,14 @@ class SimBridgeNode:
         )
 
     def _publish_camera(self, t: float, out: CameraOutput) -> None:
-        pubs = self.cam_pubs[out.camera.name]
         hdr = conv.header(t, out.camera.optical_frame_id)
-        info = conv.camera_info(out.camera, hdr)
+        if out.detections is not None:
+            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
         frame = out.frame
+        if frame is None or out.depth_m is None:
+            return  # only the detections were wanted
+        pubs = self.cam_pubs[out.camera.name]
+        info = conv.camera_info(out.camera, hdr)
         every = not self.cfg.publish.only_when_subscribed
 
         def on(p: rospy.Publisher) -> bool:
@@ -563,8 +567,6 @@ class SimBridgeNode:
             pts = depth_to_points(out.depth_m, out.camera.k)[::s, ::s]
             ok = np.isfinite(pts[..., 2])
             pubs.points.publish(xyzrgb_to_pointcloud2(hdr, pts[ok], frame.color_rgb[::s, ::s][ok]))
-        if out.detections is not None:
-            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
         self.frames += 1
 
     def _publish_contacts(self, out: StepOutput) -> None:

@@ -1,6 +1,8 @@
 """GLSL 3.30 shaders of the renderer: one multi-render-target pass and a sky pass.
 
 Outputs (``location``): 0 RGBA8 color, 1 R32F z-depth in metres, 2 R32UI instance id.
+The instance-only pass (``INSTANCE_*``, ``BACKGROUND_FS``) writes just the R32UI ids at
+location 0: ground-truth detections need nothing else, and shading is what costs.
 The color is the vertex base color times a world-space value-noise texture (three
 octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
 term, with a little distance haze.  Around home the terrain gets a concrete landing
@@ -130,4 +132,29 @@ void main() {
     f_depth = uintBitsToFloat(0x7FC00000u);  // quiet NaN: no return
     f_inst = 0u;
 }
+"""
+
+INSTANCE_VS = """
+#version 330
+uniform mat4 u_mvp;
+in vec3 in_pos;
+in uint in_inst;
+flat out uint v_inst;
+void main() {
+    v_inst = in_inst;
+    gl_Position = u_mvp * vec4(in_pos, 1.0);
+}
+"""
+
+INSTANCE_FS = """
+#version 330
+flat in uint v_inst;
+layout(location = 0) out uint f_inst;
+void main() { f_inst = v_inst; }
+"""
+
+BACKGROUND_FS = """
+#version 330
+layout(location = 0) out uint f_inst;
+void main() { f_inst = 0u; }
 """
