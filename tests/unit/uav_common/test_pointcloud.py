@@ -8,7 +8,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from uav_common.pointcloud import FIELD_OFFSETS, POINT_STEP, pack_rgb, pack_xyzrgb, unpack_rgb, unpack_xyzrgb
+from uav_common.pointcloud import (
+    FIELD_OFFSETS,
+    POINT_STEP,
+    DepthImagePacker,
+    pack_depth_image,
+    pack_rgb,
+    pack_xyzrgb,
+    unpack_rgb,
+    unpack_xyzrgb,
+)
 
 
 @settings(max_examples=50, deadline=None)
@@ -80,3 +89,40 @@ def test_pack_rejects_bad_input() -> None:
         pack_xyzrgb([[0, 0, 0]], [[0, 0, 0], [1, 1, 1]])
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         pack_xyzrgb([0, 0, 0], [[0, 0, 0]])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 24), st.integers(1, 24), st.integers(1, 3), st.integers(0, 2**31 - 1))
+def test_pack_depth_image_is_pack_xyzrgb_of_the_returns(h: int, w: int, stride: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    depth = (rng.random((h, w)) * 80.0).astype(np.float32)
+    holes = rng.random((h, w))
+    depth[holes < 0.1] = np.nan
+    depth[(holes >= 0.1) & (holes < 0.15)] = np.inf
+    depth[(holes >= 0.15) & (holes < 0.2)] = -1.0
+    depth[(holes >= 0.2) & (holes < 0.25)] = 0.0
+    color = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+    k = np.array([[0.8 * w, 0.0, (w - 1) / 2.0], [0.0, 0.8 * w, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    data, n = pack_depth_image(depth, color, k, stride)
+    packer = DepthImagePacker()  # reused buffers: a bigger frame before, and again after
+    packer.pack(np.ones((30, 30), np.float32), np.zeros((30, 30, 3), np.uint8), k)
+    assert packer.pack(depth, color, k, stride) == (data, n)
+    assert packer.pack(depth, color, k, stride) == (data, n)
+    # reference: back-project every kept pixel, drop the non-returns, pack
+    rows, cols = np.mgrid[0:h:stride, 0:w:stride]
+    z = depth[rows, cols]
+    ok = np.isfinite(z) & (z > 0)
+    with np.errstate(invalid="ignore"):
+        x = z * ((cols - k[0, 2]) / k[0, 0]).astype(np.float32)
+        y = z * ((rows - k[1, 2]) / k[1, 1]).astype(np.float32)
+    expected = pack_xyzrgb(np.stack([x[ok], y[ok], z[ok]], axis=1), color[rows, cols][ok])
+    assert n == int(ok.sum())
+    assert data == expected
+
+
+def test_pack_depth_image_rejects_mismatched_images() -> None:
+    k = np.eye(3)
+    with pytest.raises(ValueError, match=r"\(H, W, 3\) color"):
+        pack_depth_image(np.ones((4, 5), np.float32), np.zeros((4, 4, 3), np.uint8), k)
+    with pytest.raises(ValueError, match="stride"):
+        pack_depth_image(np.ones((4, 5), np.float32), np.zeros((4, 5, 3), np.uint8), k, 0)

@@ -62,11 +62,11 @@ from visualization_msgs.msg import Marker
 
 from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
 from uav_common.geo import GeoPoint
+from uav_common.pointcloud import DepthImagePacker
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
 from uav_sim_bridge.config import REPO_ROOT, SimBridgeConfig, merge_overrides
 from uav_sim_bridge.core import visualize
-from uav_sim_bridge.core.camera import depth_to_points
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
 from uav_sim_bridge.core.world import World, cache_slot, load_or_generate
@@ -75,7 +75,7 @@ from uav_sim_bridge.engine import BridgeEngine, CameraOutput, StepOutput
 from uav_sim_bridge.errors import SimBridgeError
 from uav_sim_bridge.render import Renderer
 from uav_sim_bridge.ros import conversions as conv
-from uav_sim_bridge.ros.pointcloud2 import xyzrgb_to_pointcloud2
+from uav_sim_bridge.ros.pointcloud2 import depth_image_to_pointcloud2
 from uav_sim_bridge.settle import Settle
 from uav_sim_bridge.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
 
@@ -209,6 +209,7 @@ class SimBridgeNode:
         self._sim_start: float | None = None
         self.grants = 0
         self.frames = 0
+        self._packers: dict[str, DepthImagePacker] = {}  # per camera: reused cloud buffers
         self._last_bad = 0
         # Determinism (issue 9, added by the scenario engineer): optional settle waits, lockstep master only.
         self._settle: Settle | None = None
@@ -563,10 +564,10 @@ class SimBridgeNode:
             rgb = visualize.class_image(frame.instance_id, self.world.instance_class)
             pubs.klass.publish(conv.numpy_to_image(rgb, "rgb8", hdr))
         if self.cfg.publish.points and on(pubs.points):
-            s = self.cfg.publish.points_stride
-            pts = depth_to_points(out.depth_m, out.camera.k)[::s, ::s]
-            ok = np.isfinite(pts[..., 2])
-            pubs.points.publish(xyzrgb_to_pointcloud2(hdr, pts[ok], frame.color_rgb[::s, ::s][ok]))
+            stride = self.cfg.publish.points_stride
+            packer = self._packers.setdefault(out.camera.name, DepthImagePacker())
+            cloud = depth_image_to_pointcloud2(packer, hdr, out.depth_m, frame.color_rgb, out.camera.k, stride)
+            pubs.points.publish(cloud)
         self.frames += 1
 
     def _publish_contacts(self, out: StepOutput) -> None:

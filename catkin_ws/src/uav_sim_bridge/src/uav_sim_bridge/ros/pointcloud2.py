@@ -13,10 +13,10 @@ import numpy as np
 import numpy.typing as npt
 from sensor_msgs.msg import PointCloud2, PointField
 
-from uav_common.pointcloud import FIELD_OFFSETS, POINT_STEP, pack_xyzrgb, unpack_xyzrgb
+from uav_common.pointcloud import FIELD_OFFSETS, POINT_STEP, DepthImagePacker, pack_xyzrgb, unpack_xyzrgb
 from uav_sim_bridge.errors import PointCloudLayoutError
 
-__all__ = ["pointcloud2_to_xyzrgb", "xyzrgb_fields", "xyzrgb_to_pointcloud2"]
+__all__ = ["depth_image_to_pointcloud2", "pointcloud2_to_xyzrgb", "xyzrgb_fields", "xyzrgb_to_pointcloud2"]
 
 
 def xyzrgb_fields() -> list[PointField]:
@@ -31,7 +31,23 @@ def xyzrgb_to_pointcloud2(header: Any, points_xyz: npt.ArrayLike, colors_rgb_u8:
         ValueError: shapes differ or a point is not finite.
     """
     data = pack_xyzrgb(points_xyz, colors_rgb_u8)
-    n = len(data) // POINT_STEP
+    return _cloud(header, data, len(data) // POINT_STEP)
+
+
+def depth_image_to_pointcloud2(
+    packer: DepthImagePacker,
+    header: Any,
+    depth_m: npt.ArrayLike,
+    colors_rgb_u8: npt.ArrayLike,
+    k: npt.ArrayLike,
+    stride: int = 1,
+) -> PointCloud2:
+    """The unorganised cloud of a z-depth image's returns (see :class:`uav_common.pointcloud.DepthImagePacker`)."""
+    data, n = packer.pack(depth_m, colors_rgb_u8, k, stride)
+    return _cloud(header, data, n)
+
+
+def _cloud(header: Any, data: bytes, n: int) -> PointCloud2:
     return PointCloud2(
         header=header,
         height=1,
