@@ -39,6 +39,7 @@ from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.mcdm import validate_weights, weighted_score
 from uav_autonomy.errors import InvalidInputError
 from uav_autonomy.ros.autonomy_conversions import (
+    NumpyGridLayers,
     color_image_msg,
     float_image_msg,
     grid_layers_from_msg,
@@ -95,7 +96,7 @@ class FeatureEvaluatorNode:
             )
             for name in PUBLISHED
         }
-        rospy.Subscriber("/map_server/layers", GridLayers, self.on_layers, queue_size=1, buff_size=2**26)
+        rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/target", SearchTarget, self.on_target, queue_size=10)
         rospy.Subscriber("/autonomy/weights", FeatureWeights, self.on_weights, queue_size=10)
@@ -172,7 +173,12 @@ class FeatureEvaluatorNode:
             header = Header(stamp=rospy.Time.from_sec(now_s), frame_id=self._frame_id)
             msg = grid_layers_msg(maps.spec, out, header)
             self._last_msg = msg
-        self.pub_features.publish(msg)
+        try:
+            self.pub_features.publish(msg)
+        except rospy.ROSException:
+            if rospy.is_shutdown():
+                return  # the node is going down: the topic closed under this publish
+            raise
         if self._info_spec != maps.spec:
             self._info_spec = maps.spec
             self.pub_info.publish(map_meta_data(maps.spec, header.stamp))

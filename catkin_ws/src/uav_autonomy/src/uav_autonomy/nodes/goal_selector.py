@@ -37,6 +37,7 @@ from uav_autonomy.core.features import ELEVATION, SCORED_FEATURES, FeatureMaps, 
 from uav_autonomy.core.mcdm import GoalSelector, GoalSelectorConfig
 from uav_autonomy.errors import InvalidInputError
 from uav_autonomy.ros.autonomy_conversions import (
+    NumpyGridLayers,
     goal_msgs,
     grid_layers_from_msg,
     search_target_msg,
@@ -68,7 +69,7 @@ class GoalSelectorNode:
         self.pub_target = rospy.Publisher("/autonomy/target", SearchTarget, queue_size=1, latch=True)
         self._publish_weights()
         self._publish_target("config")
-        rospy.Subscriber("/autonomy/features", GridLayers, self.on_features, queue_size=1, buff_size=2**26)
+        rospy.Subscriber("/autonomy/features", NumpyGridLayers, self.on_features, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/target_point", PointStamped, self.on_target_point, queue_size=10)
         rospy.Service("~set_weights", SetWeights, self.on_set_weights)

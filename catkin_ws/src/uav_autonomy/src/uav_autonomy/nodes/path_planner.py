@@ -59,7 +59,13 @@ from uav_autonomy.core.planning_voxels import (
     plan_on_voxel_map,
 )
 from uav_autonomy.errors import InvalidInputError, PlanningError
-from uav_autonomy.ros.autonomy_conversions import OctomapBlob, grid_layers_from_msg, octomap_from_buffer, path_msg
+from uav_autonomy.ros.autonomy_conversions import (
+    NumpyGridLayers,
+    OctomapBlob,
+    grid_layers_from_msg,
+    octomap_from_buffer,
+    path_msg,
+)
 from uav_autonomy.ros.autonomy_params import default_config_path, load_section
 from uav_common.config import ConfigError
 from uav_msgs.msg import GridLayers
@@ -102,7 +108,7 @@ class PathPlannerNode:
     def start(self) -> None:
         self.pub_path = rospy.Publisher("/autonomy/path", PathMsg, queue_size=1, latch=True)
         self.pub_status = rospy.Publisher("~status", String, queue_size=5, latch=True)
-        rospy.Subscriber("/map_server/layers", GridLayers, self.on_layers, queue_size=1, buff_size=2**26)
+        rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
         if self.uses_octomap:

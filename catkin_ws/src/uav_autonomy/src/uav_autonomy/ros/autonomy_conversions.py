@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 from geometry_msgs.msg import Point, PointStamped, Pose, PoseStamped, Quaternion
 from nav_msgs.msg import MapMetaData, Odometry, Path
+from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import BatteryState, Image
 from std_msgs.msg import Header
 
@@ -30,6 +31,10 @@ from uav_autonomy.errors import InvalidInputError
 from uav_autonomy.ros.autonomy_mavlink import OdometryReading
 from uav_msgs.msg import ControllerState, FeatureWeights, GoalReason, GridLayers, SearchTarget
 
+# GridLayers whose float32[] (millions of cells for 1 km^2) (de)serialises as one numpy buffer: genpy's plain
+# class turns it into a tuple of Python floats, which took most of the autonomy nodes' CPU. Same wire format.
+NumpyGridLayers = numpy_msg(GridLayers)
+
 __all__ = [
     "OctomapBlob",
     "battery_msg",
@@ -38,6 +43,7 @@ __all__ = [
     "float_image_msg",
     "goal_msgs",
     "grid_layers_from_msg",
+    "NumpyGridLayers",
     "grid_layers_msg",
     "map_meta_data",
     "octomap_from_buffer",
@@ -79,8 +85,9 @@ def grid_layers_from_msg(msg: GridLayers) -> tuple[GridSpec, dict[str, npt.NDArr
 
 
 def grid_layers_msg(spec: GridSpec, layers: Mapping[str, npt.NDArray[np.float32]], header: Header) -> GridLayers:
-    """Pack ``(H, W)`` layers (in mapping order) into one GridLayers."""
-    msg = GridLayers()
+    """Pack ``(H, W)`` layers (in mapping order) into one GridLayers (a :data:`NumpyGridLayers`: ``data`` is
+    a float32 array, serialised as one buffer)."""
+    msg = NumpyGridLayers()
     msg.header = header
     msg.resolution_m = spec.resolution_m
     msg.origin_x_m = spec.origin_x_m
@@ -89,7 +96,7 @@ def grid_layers_msg(spec: GridSpec, layers: Mapping[str, npt.NDArray[np.float32]
     msg.height = spec.height
     msg.names = list(layers)
     stacked = np.stack([np.asarray(layers[n], dtype=np.float32) for n in layers]) if layers else np.zeros(0)
-    msg.data = stacked.astype(np.float32).ravel().tolist()
+    msg.data = np.ascontiguousarray(stacked, dtype=np.float32).ravel()
     return msg
 
 

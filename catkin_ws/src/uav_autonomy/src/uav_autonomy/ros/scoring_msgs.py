@@ -19,6 +19,7 @@ from std_msgs.msg import Header
 from uav_autonomy.core.scoring_convert import grid_from_msg
 from uav_autonomy.core.scoring_metrics import downsample_grid
 from uav_autonomy.core.scoring_types import Track as TrackRecord
+from uav_autonomy.ros.autonomy_conversions import NumpyGridLayers
 from uav_msgs.msg import GridLayers, RunMetrics, ScenarioStatus, Track, TrackArray
 
 __all__ = ["downsampled_layers_msg", "json_safe", "metrics_msg", "run_versions", "status_msg", "tracks_msg"]
@@ -99,16 +100,18 @@ def status_msg(stamp: rospy.Time, fields: dict[str, Any]) -> ScenarioStatus:
 def downsampled_layers_msg(msg: GridLayers, max_cells: int) -> GridLayers:
     """A GridLayers message reduced to at most ``max_cells`` per side (same header and layer names).
 
-    Always a new plain ``GridLayers`` (the input may be a ``numpy_msg`` instance).
+    Always a new ``numpy_msg(GridLayers)`` (``data`` a float32 array; the input may be either kind).
     """
     grid = downsample_grid(grid_from_msg(msg), max_cells)
     rows, cols = grid.shape
-    out = GridLayers(header=msg.header, resolution_m=grid.resolution_m)
+    out = NumpyGridLayers(header=msg.header, resolution_m=grid.resolution_m)
     out.origin_x_m, out.origin_y_m = grid.origin_x_m, grid.origin_y_m
     out.width, out.height = cols, rows
     out.names = list(grid.layers)
     out.data = (
-        np.concatenate([grid.layers[n].astype(np.float32).ravel() for n in out.names]).tolist() if out.names else []
+        np.concatenate([grid.layers[n].astype(np.float32).ravel() for n in out.names])
+        if out.names
+        else np.zeros(0, np.float32)
     )
     return out
 
