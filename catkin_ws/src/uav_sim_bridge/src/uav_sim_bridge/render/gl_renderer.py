@@ -129,6 +129,7 @@ class Renderer:
             raise RenderError(msg) from err
         self.gl_renderer = str(self.ctx.info.get("GL_RENDERER", "unknown"))
         self._targets: dict[tuple[int, int], _Target] = {}
+        self._queries: list[Any] = []  # occlusion queries of unoccluded_pixel_counts, reused
         self._build_programs()
         self._upload_static()
         self._upload_dynamic()
@@ -423,15 +424,16 @@ class Renderer:
         self, camera: CameraModel, t_map_optical: RigidTransform, instance_ids: list[int]
     ) -> dict[int, int]:
         target = self._setup_camera(camera, t_map_optical, shaded=False)
-        out: dict[int, int] = {}
-        for iid in instance_ids:
+        # moderngl cannot release query objects: keep a pool and reuse it every frame.
+        while len(self._queries) < len(instance_ids):
+            self._queries.append(self.ctx.query(samples=True))
+        for iid, query in zip(instance_ids, self._queries, strict=False):
             first, count = self._dyn_ranges[iid]
             target.fbo_inst.clear(depth=1.0)
-            query = self.ctx.query(samples=True)
             with query:
                 self._dyn_ivao.render(self._mgl.TRIANGLES, vertices=count, first=first)
-            out[iid] = int(query.samples)
-        return out
+        # Read the results only after every query was issued: each read waits for the GPU (llvmpipe) to finish.
+        return {iid: int(q.samples) for iid, q in zip(instance_ids, self._queries, strict=False)}
 
     def close(self) -> None:
         """Release every GL object and the context."""
