@@ -151,6 +151,7 @@ Params readParams(const ros::NodeHandle& pnh, std::vector<std::string>& warnings
   m.filter.min_z_m = r.getDouble("pointcloud_min_z", -kInf);
   m.filter.max_z_m = r.getDouble("pointcloud_max_z", kInf);
   m.filter.voxel_leaf_m = r.getDouble("voxel_filter_leaf_m", 0.0);
+  m.filter.voxel_impl = voxelFilterImplFromString(r.get<std::string>("voxel_filter", "fast"));
   m.threads = r.get<int>("threads", 2);
   m.prune = r.get<bool>("compress_map", true);
   m.color_blend = r.getDouble("color_blend", 0.5);

@@ -80,7 +80,7 @@ InsertStats Mapper::insert(const ColoredPoints& sensor_points, const RigidTransf
   InsertStats stats;
   const auto t0 = Clock::now();
   transformAndFilter(sensor_points, map_from_sensor, config_.filter, filtered_, stats.filter);
-  voxelGridFilter(filtered_, config_.filter.voxel_leaf_m, stats.filter);
+  voxelGridFilter(filtered_, config_.filter.voxel_leaf_m, stats.filter, config_.filter.voxel_impl);
   stats.filter_ms = msSince(t0);
   const InsertStats inner = insertMapPoints(filtered_, map_from_sensor.origin(), stamp_s);
   stats.points_inserted = inner.points_inserted;

@@ -6,7 +6,8 @@
 //       OcTree::insertPointCloud (octomap_server's insertion) on the same frames as the baseline, and whether
 //       full ray clearing gives exactly stock's set of occupied and free keys (and log-odds).
 //   map_bench pipeline --res 0.5 --frames 5 --mode surface --leaf 0.5 [--backend octomap] [--truncation 3]
-//       Time of the whole Mapper::insert (transform, filters, PCL voxel grid, insertion).
+//                      [--voxel fast|pcl]
+//       Time of the whole Mapper::insert (transform, filters, voxel grid, insertion).
 //   map_bench coverage --res 0.5 --backend octomap --mode surface --side 1000 [--spacing 20] [--row 80]
 //       Lawnmower over a side x side square at 50 m AGL; map memory and process RSS at the end.
 //
@@ -297,6 +298,7 @@ int runPipeline(const std::map<std::string, std::string>& a) {
   cfg.mode = insertModeFromString(arg(a, "mode", "surface"));
   cfg.truncation_m = std::stod(arg(a, "truncation", "3"));
   cfg.filter.voxel_leaf_m = std::stod(arg(a, "leaf", "0"));
+  cfg.filter.voxel_impl = voxelFilterImplFromString(arg(a, "voxel", "fast"));
   cfg.threads = threads;
   Mapper mapper(cfg);
   // Sensor-frame clouds and their poses: rendered frames (map-frame points shifted to the sensor origin, a
@@ -331,7 +333,8 @@ int runPipeline(const std::map<std::string, std::string>& a) {
   }
   const std::size_t n = std::max<std::size_t>(1, inputs.size());
   std::cout << "{\"kind\": \"pipeline\", \"backend\": \"" << arg(a, "backend", "octomap") << "\", \"mode\": \""
-            << arg(a, "mode", "surface") << "\", \"res_m\": " << res << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
+            << arg(a, "mode", "surface") << "\", \"voxel\": \"" << toString(cfg.filter.voxel_impl)
+            << "\", \"res_m\": " << res << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
             << ", \"median_total_ms\": " << median(total) << ", \"median_filter_ms\": " << median(filter)
             << ", \"median_insert_ms\": " << median(insert) << ", \"points_in_per_frame\": " << pts_in / n
             << ", \"points_inserted_per_frame\": " << pts_out / n << "}" << std::endl;

@@ -1,10 +1,12 @@
-// Pre-insertion filtering: sensor -> map transform, non-finite / range / box filters, PCL voxel grid.
+// Pre-insertion filtering: sensor -> map transform, non-finite / range / box filters, voxel grid (PCL's
+// VoxelGrid, or the same arithmetic several times faster).
 #pragma once
 
 #include <uav_mapping/frame_update.h>
 
 #include <cstddef>
 #include <limits>
+#include <string>
 
 namespace uav_mapping {
 
@@ -18,6 +20,13 @@ struct RigidTransform {
   }
 };
 
+/// Who downsamples: kFast (default) reproduces pcl::VoxelGrid's leaves, centroids and mean colours (float
+/// summation order within a leaf aside) ~4x faster; kPcl runs pcl::VoxelGrid itself.
+enum class VoxelFilterImpl { kFast, kPcl };
+std::string toString(VoxelFilterImpl impl);
+/// Parses "fast" or "pcl"; throws std::invalid_argument otherwise.
+VoxelFilterImpl voxelFilterImplFromString(const std::string& name);
+
 struct FilterOptions {
   double min_range_m = -1.0;  // points closer to the sensor are dropped (< 0: off)
   double min_x_m = -std::numeric_limits<double>::infinity();  // pass-through box in the map frame
@@ -27,6 +36,7 @@ struct FilterOptions {
   double min_z_m = -std::numeric_limits<double>::infinity();
   double max_z_m = std::numeric_limits<double>::infinity();
   double voxel_leaf_m = 0.0;  // PCL VoxelGrid leaf size in the map frame (0: off)
+  VoxelFilterImpl voxel_impl = VoxelFilterImpl::kFast;
 };
 
 struct FilterStats {
@@ -42,8 +52,9 @@ struct FilterStats {
 void transformAndFilter(const ColoredPoints& sensor_points, const RigidTransform& map_from_sensor,
                         const FilterOptions& options, ColoredPoints& out, FilterStats& stats);
 
-/// PCL VoxelGrid (centroid and mean colour per leaf), in place. Skipped (stats.voxel_grid_skipped) when the
-/// cloud's extent would overflow PCL's voxel index.
-void voxelGridFilter(ColoredPoints& points, double leaf_m, FilterStats& stats);
+/// PCL VoxelGrid (centroid and mean colour per leaf, leaves in PCL's order), in place. Skipped
+/// (stats.voxel_grid_skipped) when the cloud's extent would overflow PCL's voxel index.
+void voxelGridFilter(ColoredPoints& points, double leaf_m, FilterStats& stats,
+                     VoxelFilterImpl impl = VoxelFilterImpl::kFast);
 
 }  // namespace uav_mapping
