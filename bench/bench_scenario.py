@@ -18,6 +18,10 @@ Results (``bench/results/latest.jsonl``):
 * ``scenario.loiter.coverage_efficiency``: that rate over the physical limit (camera swath at the
   flown height x cruise speed, first footprint excluded; docs/scenarios.md); baseline: the
   lawnmower's.
+* ``scenario.loiter.clouds_dropped_pct``: nadir clouds the map server dropped because insertion fell
+  behind (a loop that only looks fast by losing map data would show here); baseline: the lawnmower's.
+* ``scenario.loiter.cpu_s_per_sim_s``: CPU seconds of all the run's processes per simulated second
+  (sampled from /proc; the notes break it down per node); on 2 cores 3x real time needs <= 0.67.
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120]``.
 """
@@ -26,10 +30,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -44,14 +50,76 @@ LAWNMOWER = REPO / "bench/scenarios/loiter_lawnmower.yaml"
 RTF_TARGET = 3.0
 
 
-def run(scenario: Path, run_dir: Path, sim_seconds: float) -> tuple[dict[str, Any], dict[str, float]]:
-    """One uav-run in lockstep without recording; returns (metrics.json, pace.json)."""
+class CpuSampler:
+    """CPU seconds per process of one run while simulated time runs: every process whose command line names
+    the run folder (roslaunch gives every node a log path inside it; the SITL and router read their config
+    from it), sampled from /proc twice a second. Counted from the scorer's first time-series row (the
+    mission start: start-up work such as loading the world is excluded) to each process's last sample."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.marker = str(run_dir).encode()
+        self.started = run_dir / "timeseries.csv"
+        self.tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
+        self.cpu_s: dict[int, tuple[str, float]] = {}
+        self.at_start: dict[int, float] | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> CpuSampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.5):
+            if self.at_start is None and self.started.exists():
+                self.at_start = {pid: cpu for pid, (_, cpu) in self.cpu_s.items()}
+            for entry in os.scandir("/proc"):
+                if not entry.name.isdigit():
+                    continue
+                try:
+                    cmd = Path(entry.path, "cmdline").read_bytes()
+                    stat = Path(entry.path, "stat").read_text()
+                except OSError:
+                    continue
+                if self.marker not in cmd:
+                    continue
+                fields = stat.rsplit(")", 1)[1].split()
+                cpu = (int(fields[11]) + int(fields[12])) * self.tick_s  # utime + stime
+                self.cpu_s[int(entry.name)] = (_node_name(cmd), cpu)
+
+    def per_node(self) -> dict[str, float]:
+        start = self.at_start or {}
+        out: dict[str, float] = {}
+        for pid, (name, cpu) in self.cpu_s.items():
+            out[name] = out.get(name, 0.0) + cpu - start.get(pid, 0.0)
+        return out
+
+
+def _node_name(cmdline: bytes) -> str:
+    args = [a.decode(errors="replace") for a in cmdline.split(b"\0") if a]
+    for a in args:
+        if a.startswith("__name:="):
+            return a.split(":=", 1)[1]
+    for a in args:
+        base = Path(a).name
+        if base.startswith("uav-") or base in ("rosmaster", "roslaunch", "rosout"):
+            return base
+    return Path(args[0]).name if args else "?"
+
+
+def run(scenario: Path, run_dir: Path, sim_seconds: float) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
+    """One uav-run in lockstep without recording; returns (metrics.json, pace.json, CPU s per process)."""
     argv = [
         "uav-run", str(scenario), "--run-dir", str(run_dir), "--lockstep", "--no-record", "--quiet",
         "--time-limit", f"{sim_seconds:g}",
     ]  # fmt: skip
     t0 = time.monotonic()
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=sim_seconds * 10 + 300, check=False)
+    with CpuSampler(run_dir) as cpu:
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=sim_seconds * 10 + 300, check=False)
     wall = time.monotonic() - t0
     print(f"  {scenario.name}: uav-run exited {proc.returncode} after {wall:.0f} s wall", flush=True)
     if proc.returncode != 0:
@@ -59,7 +127,13 @@ def run(scenario: Path, run_dir: Path, sim_seconds: float) -> tuple[dict[str, An
         raise RuntimeError(msg)
     metrics = json.loads((run_dir / "metrics.json").read_text())
     pace = json.loads((run_dir / "pace.json").read_text())
-    return metrics, pace
+    return metrics, pace, cpu.per_node()
+
+
+def dropped_pct(metrics: dict[str, Any]) -> float:
+    m = metrics.get("map_input") or {}
+    received = float(m.get("clouds_received", 0))
+    return 100.0 * float(m.get("dropped_queue_full", 0)) / received if received else float("nan")
 
 
 def main() -> int:
@@ -72,8 +146,8 @@ def main() -> int:
         return 2
     parent = args.keep or Path(tempfile.mkdtemp(prefix="bench_scenario_"))
     try:
-        loiter, loiter_pace = run(LOITER, parent / "loiter", args.sim_seconds)
-        mower, mower_pace = run(LAWNMOWER, parent / "lawnmower", args.sim_seconds)
+        loiter, loiter_pace, loiter_cpu = run(LOITER, parent / "loiter", args.sim_seconds)
+        mower, mower_pace, mower_cpu = run(LAWNMOWER, parent / "lawnmower", args.sim_seconds)
     finally:
         if args.keep is None:
             shutil.rmtree(parent, ignore_errors=True)
@@ -87,6 +161,24 @@ def main() -> int:
         target=f">= {RTF_TARGET:g}",
         met=rtf >= RTF_TARGET,
         notes=f"{notes} (sim {loiter_pace['sim_s']:.0f} s in {loiter_pace['wall_s']:.0f} s wall)",
+    )
+    record(
+        "scenario.loiter.clouds_dropped_pct",
+        dropped_pct(loiter),
+        "%",
+        dropped_pct(mower),
+        notes=f"{notes}; clouds the map server dropped (queue_full) of {loiter['map_input'].get('clouds_received')}",
+    )
+    sim_s = float(loiter["time"]["duration_s"])
+    per_sim = {k: v / sim_s for k, v in sorted(loiter_cpu.items(), key=lambda kv: -kv[1])}
+    record(
+        "scenario.loiter.cpu_s_per_sim_s",
+        sum(per_sim.values()),
+        "cpu-s/sim-s",
+        sum(mower_cpu.values()) / float(mower["time"]["duration_s"]),
+        target="<= 0.67 for 3x on 2 cores",
+        met=sum(per_sim.values()) <= 2.0 / RTF_TARGET,
+        notes=f"{notes}; per node: " + ", ".join(f"{k} {v:.3f}" for k, v in per_sim.items() if v >= 0.005),
     )
     cov, cov_base = loiter["coverage"], mower["coverage"]
     record(

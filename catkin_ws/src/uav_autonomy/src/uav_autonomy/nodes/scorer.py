@@ -81,6 +81,7 @@ from uav_msgs.msg import (
     DetectionArray,
     GoalReason,
     GridLayers,
+    MapInsertStats,
     RunMetrics,
     ScenarioStatus,
     TrackArray,
@@ -167,6 +168,7 @@ class ScorerNode:
         self._next_accuracy_s = -math.inf
         self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
         self.versions = run_versions()
+        self.map_input: dict[str, int] = {}  # the map server's cloud totals (its last ~insert_stats)
 
     # ---- wiring --------------------------------------------------------------------------
 
@@ -199,6 +201,7 @@ class ScorerNode:
             queue_size=QUEUE,
         )
         sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=QUEUE)
+        sub(f"{self.map_server_ns}/insert_stats", MapInsertStats, self.on_insert_stats, queue_size=QUEUE)
         sub("/clock", Clock, self.on_clock, queue_size=10)
         rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
         rospy.on_shutdown(self.finish)
@@ -293,6 +296,23 @@ class ScorerNode:
     def on_detector(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         self._push(frame.t_s, "detector", frame)
+
+    def on_insert_stats(self, msg: MapInsertStats) -> None:
+        """Totals since the map server started: how many clouds reached the map (dropped ones cost coverage)."""
+        dropped = {
+            "queue_full": int(msg.clouds_dropped_queue_full),
+            "no_transform": int(msg.clouds_dropped_no_transform),
+            "empty": int(msg.clouds_dropped_empty),
+            "bad_layout": int(msg.clouds_dropped_bad_layout),
+            "too_large": int(msg.clouds_dropped_too_large),
+        }
+        with self.lock:
+            if int(msg.clouds_inserted) + sum(dropped.values()) >= self.map_input.get("clouds_received", 0):
+                self.map_input = {
+                    "clouds_received": int(msg.clouds_inserted) + sum(dropped.values()),
+                    "clouds_inserted": int(msg.clouds_inserted),
+                    **{f"dropped_{k}": v for k, v in dropped.items()},
+                }
 
     def on_controller(self, msg: ControllerState) -> None:
         sample = controller_from_msg(msg, rospy.get_time())
@@ -396,6 +416,8 @@ class ScorerNode:
             (e["what"][6:] for e in reversed(summary["events"]) if e["what"].startswith("stop: ")), ""
         )
         summary["world"] = self.world_info
+        with self.lock:
+            summary["map_input"] = dict(self.map_input)
         if self.person:
             summary["person"] = dict(self.person)
         if self.truth_note:

@@ -36,6 +36,7 @@ from uav_msgs.msg import ControllerState, FeatureWeights, GoalReason, GridLayers
 NumpyGridLayers = numpy_msg(GridLayers)
 
 __all__ = [
+    "NumpyGridLayers",
     "OctomapBlob",
     "battery_msg",
     "color_image_msg",
@@ -43,7 +44,6 @@ __all__ = [
     "float_image_msg",
     "goal_msgs",
     "grid_layers_from_msg",
-    "NumpyGridLayers",
     "grid_layers_msg",
     "map_meta_data",
     "octomap_from_buffer",

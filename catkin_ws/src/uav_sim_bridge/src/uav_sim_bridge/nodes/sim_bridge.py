@@ -566,7 +566,7 @@ class SimBridgeNode:
         if self.cfg.publish.points and on(pubs.points):
             stride = self.cfg.publish.points_stride
             packer = self._packers.setdefault(out.camera.name, DepthImagePacker())
-            cloud = depth_image_to_pointcloud2(packer, hdr, out.depth_m, frame.color_rgb, out.camera.k, stride)
+            cloud = depth_image_to_pointcloud2(packer, hdr, out.depth_m, frame.color_rgb, out.camera.k, stride=stride)
             pubs.points.publish(cloud)
         self.frames += 1
 

@@ -40,6 +40,7 @@ def depth_image_to_pointcloud2(
     depth_m: npt.ArrayLike,
     colors_rgb_u8: npt.ArrayLike,
     k: npt.ArrayLike,
+    *,
     stride: int = 1,
 ) -> PointCloud2:
     """The unorganised cloud of a z-depth image's returns (see :class:`uav_common.pointcloud.DepthImagePacker`)."""
