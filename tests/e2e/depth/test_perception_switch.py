@@ -37,7 +37,7 @@ def wait_subscribed(topic: str, node: str, proc: Proc, timeout_s: float = 30.0) 
 @pytest.mark.parametrize(
     ("source", "cloud", "depth_nodes"),
     [
-        ("ground_truth", "/cameras/nadir/points", False),
+        ("ground_truth", "/cameras/nadir/depth/image_raw", False),
         ("estimated", "/depth_estimator/points", True),
     ],
 )
@@ -50,8 +50,13 @@ def test_depth_source_switches_the_map_input(source: str, cloud: str, depth_node
         )
         try:
             subs = wait_subscribed(cloud, "/map_server", proc)
-            other = "/depth_estimator/points" if source == "ground_truth" else "/cameras/nadir/points"
-            assert "/map_server" not in subs.get(other, set())
+            if source == "ground_truth":  # rgbd input: depth, color and the depth camera's info, no cloud
+                for topic in ("/cameras/nadir/color/image_raw", "/cameras/nadir/depth/camera_info"):
+                    subs = wait_subscribed(topic, "/map_server", proc)
+                others = ["/depth_estimator/points", "/cameras/nadir/points"]
+            else:
+                others = ["/cameras/nadir/points", "/cameras/nadir/depth/image_raw"]
+            assert not [t for t in others if "/map_server" in subs.get(t, set())]
             if depth_nodes:
                 wait_subscribed("/cameras/nadir/color/image_raw", "/depth_estimator", proc)
                 wait_subscribed("/depth_estimator/depth/image_raw", "/depth_evaluator", proc)

@@ -163,13 +163,19 @@ def test_recorded_topics_presets() -> None:
     assert set(report) < set(replay)
     assert replay.count("/tf") == 1
     assert "/extra" in replay
-    assert "/cameras/nadir/points" in replay  # ground-truth depth: the map camera's cloud
+    # ground-truth depth: the map camera's depth and color images (the map server back-projects them)
+    assert {
+        "/cameras/nadir/depth/image_raw",
+        "/cameras/nadir/color/image_raw",
+        "/cameras/nadir/depth/camera_info",
+    } <= set(replay)
+    assert "/cameras/nadir/points" not in replay
     estimated = replace(s, depth_source=DepthSource.ESTIMATED, recording=RecordingSpec(preset="replay"))
     assert "/cameras/nadir/depth/image_raw" in recorded_topics(estimated)
     assert "/cameras/nadir/points" not in recorded_topics(estimated)
     # a replay plays what the regenerating nodes read, never what they write
     played = played_topics(s)
-    assert "/cameras/nadir/points" in played
+    assert "/cameras/nadir/depth/image_raw" in played
     assert not {"/map_server/layers", "/autonomy/features", "/scenario/metrics", "/scenario/tracks"} & set(played)
     with pytest.raises(ValueError, match="preset"):
         replace(RecordingSpec(), preset="everything")

@@ -1,6 +1,8 @@
 // map_server: the roscpp node around uav_mapping::Mapper, a drop-in for octomap_server plus 2D layers.
 //
-// Subscribes   cloud_in (sensor_msgs/PointCloud2), transformed through tf to ~frame_id at the cloud's stamp
+// Subscribes   cloud_in (sensor_msgs/PointCloud2), transformed through tf to ~frame_id at the cloud's stamp;
+//              or, with ~input rgbd, depth_in + color_in (sensor_msgs/Image) + camera_info_in
+//              (sensor_msgs/CameraInfo) of one camera with equal stamps, back-projected here
 // Publishes    octomap_binary, octomap_full (octomap_msgs/Octomap), occupied_cells_vis_array (MarkerArray),
 //              projected_map (nav_msgs/OccupancyGrid), octomap_point_cloud_centers (PointCloud2),
 //              ~layers (uav_msgs/GridLayers: elevation_m, last_seen_s, observed), ~insert_stats
@@ -18,6 +20,8 @@
 #include <uav_mapping/mapper.h>
 #include <uav_mapping/octree_map.h>
 
+#include <message_filters/subscriber.h>
+#include <message_filters/time_synchronizer.h>
 #include <octomap_msgs/BoundingBoxQuery.h>
 #include <octomap_msgs/GetOctomap.h>
 #include <ros/callback_queue.h>
@@ -57,6 +61,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 struct Params {
   MapperConfig mapper;
   std::string frame_id = "map";
+  bool rgbd_input = false;  // ~input: cloud (cloud_in) | rgbd (depth_in, color_in, camera_info_in)
+  bool rgbd_color = true;   // ~rgbd_color: also subscribe color_in (false: uncoloured points)
   bool latch = true;
   int queue_size = 5;
   double tf_wait_s = 0.5;
@@ -134,6 +140,12 @@ Params readParams(const ros::NodeHandle& pnh, std::vector<std::string>& warnings
   Params p;
   MapperConfig& m = p.mapper;
   p.frame_id = r.get<std::string>("frame_id", "map");
+  const std::string input = r.get<std::string>("input", "cloud");
+  if (input != "cloud" && input != "rgbd")
+    throw std::invalid_argument("input must be 'cloud' (cloud_in) or 'rgbd' (depth_in, color_in, camera_info_in), "
+                                "got '" + input + "'");
+  p.rgbd_input = input == "rgbd";
+  p.rgbd_color = r.get<bool>("rgbd_color", true);
   m.resolution_m = r.getDouble("resolution", 0.05);
   m.backend = backendFromString(r.get<std::string>("backend", "octomap"));
   m.mode = insertModeFromString(r.get<std::string>("insert_mode", "full"));
@@ -249,20 +261,44 @@ class MapServerNode {
     worker_ = std::thread(&MapServerNode::workerLoop, this);
     // Clouds have their own callback queue and spinner thread: queueing a cloud never waits behind a timer or a
     // service of the main thread (e.g. building markers of a large map), so drops are counted, not silent.
-    ros::SubscribeOptions opts = ros::SubscribeOptions::create<sensor_msgs::PointCloud2>(
-        "cloud_in", 2, boost::bind(&MapServerNode::onCloud, this, boost::placeholders::_1), ros::VoidPtr(),
-        &cloud_queue_);
-    sub_cloud_ = nh_.subscribe(opts);
+    std::string inputs;
+    if (p_.rgbd_input) {
+      // Depth, colour and camera info of one frame carry one stamp (exact synchronisation).
+      const ros::TransportHints hints;
+      sub_depth_.subscribe(nh_, "depth_in", 3, hints, &cloud_queue_);
+      sub_info_.subscribe(nh_, "camera_info_in", 3, hints, &cloud_queue_);
+      if (p_.rgbd_color) {
+        sub_color_.subscribe(nh_, "color_in", 3, hints, &cloud_queue_);
+        sync_rgbd_ = std::make_unique<RgbdSync>(sub_depth_, sub_color_, sub_info_, 6);
+        sync_rgbd_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
+                                                 boost::placeholders::_2, boost::placeholders::_3));
+      } else {
+        sync_depth_ = std::make_unique<DepthSync>(sub_depth_, sub_info_, 6);
+        sync_depth_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
+                                                  sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
+      }
+      inputs = "depth_in " + sub_depth_.getTopic() + (p_.rgbd_color ? ", color_in " + sub_color_.getTopic() : "") +
+               ", camera_info_in " + sub_info_.getTopic();
+    } else {
+      ros::SubscribeOptions opts = ros::SubscribeOptions::create<sensor_msgs::PointCloud2>(
+          "cloud_in", 2, boost::bind(&MapServerNode::onCloud, this, boost::placeholders::_1), ros::VoidPtr(),
+          &cloud_queue_);
+      sub_cloud_ = nh_.subscribe(opts);
+      inputs = "cloud_in " + sub_cloud_.getTopic();
+    }
     cloud_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &cloud_queue_);
     cloud_spinner_->start();
     ROS_INFO_STREAM("map_server: backend " << toString(p_.mapper.backend) << ", " << p_.mapper.resolution_m
-                                           << " m, insert_mode " << toString(p_.mapper.mode) << ", cloud_in "
-                                           << sub_cloud_.getTopic() << " -> frame " << p_.frame_id);
+                                           << " m, insert_mode " << toString(p_.mapper.mode) << ", " << inputs
+                                           << " -> frame " << p_.frame_id);
   }
 
   ~MapServerNode() {
     if (cloud_spinner_) cloud_spinner_->stop();
     sub_cloud_.shutdown();
+    sub_depth_.unsubscribe();
+    sub_color_.unsubscribe();
+    sub_info_.unsubscribe();
     {
       std::lock_guard<std::mutex> lock(queue_mutex_);
       stop_ = true;
@@ -273,10 +309,24 @@ class MapServerNode {
   }
 
  private:
+  /// One sensor frame waiting for its transform and insertion: a cloud, or a depth image (+ colour) and its
+  /// camera info.
   struct Pending {
-    sensor_msgs::PointCloud2ConstPtr msg;
+    uint64_t id = 0;
+    std_msgs::Header header;
+    sensor_msgs::PointCloud2ConstPtr cloud;
+    sensor_msgs::ImageConstPtr depth;
+    sensor_msgs::ImageConstPtr color;
+    sensor_msgs::CameraInfoConstPtr info;
     std::chrono::steady_clock::time_point received;
+
+    uint32_t points() const {
+      if (cloud) return cloud->width * cloud->height;
+      return depth ? depth->width * depth->height : 0;
+    }
   };
+  using RgbdSync = message_filters::TimeSynchronizer<sensor_msgs::Image, sensor_msgs::Image, sensor_msgs::CameraInfo>;
+  using DepthSync = message_filters::TimeSynchronizer<sensor_msgs::Image, sensor_msgs::CameraInfo>;
   struct Totals {
     uint64_t inserted = 0, empty = 0, bad_layout = 0, too_large = 0, no_transform = 0, queue_full = 0;
     uint64_t nonfinite = 0;
@@ -285,15 +335,34 @@ class MapServerNode {
   // ---------------------------------------------------------------------------------------------- clouds
 
   void onCloud(const sensor_msgs::PointCloud2ConstPtr& msg) {
+    Pending item;
+    item.header = msg->header;
+    item.cloud = msg;
+    enqueue(std::move(item));
+  }
+
+  void onRgbd(const sensor_msgs::ImageConstPtr& depth, const sensor_msgs::ImageConstPtr& color,
+              const sensor_msgs::CameraInfoConstPtr& info) {
+    Pending item;
+    item.header = depth->header;
+    item.depth = depth;
+    item.color = color;
+    item.info = info;
+    enqueue(std::move(item));
+  }
+
+  void enqueue(Pending item) {
+    item.received = std::chrono::steady_clock::now();
     std::unique_lock<std::mutex> lock(queue_mutex_);
+    item.id = ++next_id_;
     if (queue_.size() >= static_cast<std::size_t>(p_.queue_size)) {
       Pending old = queue_.front();
       queue_.pop_front();
       lock.unlock();
-      drop(*old.msg, "queue_full", "insertion is slower than the cloud rate; oldest cloud dropped", 0.0);
+      drop(old, "queue_full", "insertion is slower than the cloud rate; oldest cloud dropped", 0.0);
       lock.lock();
     }
-    queue_.push_back({msg, std::chrono::steady_clock::now()});
+    queue_.push_back(std::move(item));
     lock.unlock();
     queue_cv_.notify_one();
   }
@@ -308,7 +377,7 @@ class MapServerNode {
         item = queue_.front();
       }
       // Wait for the transform (clouds are processed in arrival order).
-      const std::string& source = item.msg->header.frame_id;
+      const std::string& source = item.header.frame_id;
       geometry_msgs::TransformStamped tf;
       std::string error;
       bool have_tf = false;
@@ -316,9 +385,9 @@ class MapServerNode {
         error = "the cloud has an empty frame_id";
       } else {
         while (true) {
-          if (tf_buffer_.canTransform(p_.frame_id, source, item.msg->header.stamp, &error)) {
+          if (tf_buffer_.canTransform(p_.frame_id, source, item.header.stamp, &error)) {
             try {
-              tf = tf_buffer_.lookupTransform(p_.frame_id, source, item.msg->header.stamp);
+              tf = tf_buffer_.lookupTransform(p_.frame_id, source, item.header.stamp);
               have_tf = true;
             } catch (const tf2::TransformException& e) {
               error = e.what();
@@ -334,46 +403,50 @@ class MapServerNode {
       {
         std::lock_guard<std::mutex> lock(queue_mutex_);
         // The item may have been pushed out by onCloud meanwhile (then it was already counted as queue_full).
-        if (queue_.empty() || queue_.front().msg != item.msg) continue;
+        if (queue_.empty() || queue_.front().id != item.id) continue;
         queue_.pop_front();
       }
       const double wait_ms = msBetween(item.received, std::chrono::steady_clock::now());
       if (!have_tf) {
-        drop(*item.msg, "no_transform",
+        drop(item, "no_transform",
              "no transform " + p_.frame_id + " <- '" + source + "' at the cloud's stamp: " + error, wait_ms);
         continue;
       }
-      insert(*item.msg, tf, wait_ms);
+      insert(item, tf, wait_ms);
     }
   }
 
-  void insert(const sensor_msgs::PointCloud2& msg, const geometry_msgs::TransformStamped& tf, double wait_ms) {
+  void insert(const Pending& item, const geometry_msgs::TransformStamped& tf, double wait_ms) {
     std::string detail;
-    const ros_conv::CloudError err = ros_conv::parseCloud(msg, p_.max_points, sensor_points_, detail);
+    const ros_conv::CloudError err =
+        item.cloud ? ros_conv::parseCloud(*item.cloud, p_.max_points, sensor_points_, detail)
+                   : ros_conv::depthToPoints(*item.depth, item.color.get(), *item.info, p_.max_points, sensor_points_,
+                                             detail);
     if (err != ros_conv::CloudError::kNone) {
-      drop(msg, ros_conv::toString(err), detail, wait_ms);
+      drop(item, ros_conv::toString(err), detail, wait_ms);
       return;
     }
+    const std_msgs::Header& hdr = item.header;
     InsertStats st;
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
-      st = mapper_.insert(sensor_points_, ros_conv::fromMsg(tf), msg.header.stamp.toSec());
+      st = mapper_.insert(sensor_points_, ros_conv::fromMsg(tf), hdr.stamp.toSec());
       markChanged();
     }
     if (st.filter.nonfinite > 0 && shouldWarn("nonfinite"))
       ROS_WARN("map_server: dropped %zu non-finite points of a cloud from '%s'", st.filter.nonfinite,
-               msg.header.frame_id.c_str());
+               hdr.frame_id.c_str());
     if (st.points_out_of_map > 0 && shouldWarn("out_of_map"))
       ROS_WARN("map_server: %zu points of a cloud from '%s' lie outside the map's addressable cube",
-               st.points_out_of_map, msg.header.frame_id.c_str());
+               st.points_out_of_map, hdr.frame_id.c_str());
     if (st.points_inserted == 0 && shouldWarn("no_points"))
-      ROS_WARN("map_server: a cloud from '%s' had no usable point after filtering", msg.header.frame_id.c_str());
+      ROS_WARN("map_server: a cloud from '%s' had no usable point after filtering", hdr.frame_id.c_str());
     uav_msgs::MapInsertStats s;
     {
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++totals_.inserted;
       totals_.nonfinite += st.filter.nonfinite;
-      fillStats(s, msg);
+      fillStats(s, hdr);
     }
     s.inserted = true;
     s.points_in = static_cast<uint32_t>(st.filter.points_in);
@@ -393,7 +466,7 @@ class MapServerNode {
     if (p_.map_publish_rate_hz == 0.0) publishMapOutputs();
   }
 
-  void drop(const sensor_msgs::PointCloud2& msg, const std::string& reason, const std::string& detail, double wait_ms) {
+  void drop(const Pending& item, const std::string& reason, const std::string& detail, double wait_ms) {
     uav_msgs::MapInsertStats s;
     {
       std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -402,11 +475,11 @@ class MapServerNode {
       if (reason == "too_large") ++totals_.too_large;
       if (reason == "no_transform") ++totals_.no_transform;
       if (reason == "queue_full") ++totals_.queue_full;
-      fillStats(s, msg);
+      fillStats(s, item.header);
     }
     s.inserted = false;
     s.drop_reason = reason;
-    s.points_in = msg.width * msg.height;
+    s.points_in = item.points();
     s.wait_ms = wait_ms;
     pub_stats_.publish(s);
     if (shouldWarn("drop_" + reason))
@@ -424,8 +497,8 @@ class MapServerNode {
   }
 
   /// Header, backend, mode and totals; call with stats_mutex_ held.
-  void fillStats(uav_msgs::MapInsertStats& s, const sensor_msgs::PointCloud2& msg) {
-    s.header.stamp = msg.header.stamp;
+  void fillStats(uav_msgs::MapInsertStats& s, const std_msgs::Header& hdr) {
+    s.header.stamp = hdr.stamp;
     s.header.frame_id = p_.frame_id;
     s.backend = toString(p_.mapper.backend);
     s.mode = toString(p_.mapper.mode);
@@ -709,6 +782,7 @@ class MapServerNode {
   std::mutex queue_mutex_;
   std::condition_variable queue_cv_;
   std::deque<Pending> queue_;
+  uint64_t next_id_ = 0;
   bool stop_ = false;
   std::thread worker_;
   ColoredPoints sensor_points_;  // worker thread only
@@ -725,6 +799,11 @@ class MapServerNode {
   ros::CallbackQueue cloud_queue_;
   std::unique_ptr<ros::AsyncSpinner> cloud_spinner_;
   ros::Subscriber sub_cloud_;
+  message_filters::Subscriber<sensor_msgs::Image> sub_depth_;
+  message_filters::Subscriber<sensor_msgs::Image> sub_color_;
+  message_filters::Subscriber<sensor_msgs::CameraInfo> sub_info_;
+  std::unique_ptr<RgbdSync> sync_rgbd_;
+  std::unique_ptr<DepthSync> sync_depth_;
   ros::Publisher pub_binary_, pub_full_, pub_markers_, pub_projected_, pub_centers_, pub_layers_, pub_stats_;
   ros::ServiceServer srv_binary_, srv_full_, srv_reset_, srv_clear_, srv_layers_, srv_save_, srv_load_, srv_export_;
   ros::Timer timer_layers_;

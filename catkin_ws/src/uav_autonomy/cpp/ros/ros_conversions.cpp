@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <array>
 #include <cstring>
 #include <limits>
 #include <sstream>
@@ -101,6 +102,111 @@ CloudError parseCloud(const sensor_msgs::PointCloud2& msg, std::size_t max_point
                       static_cast<uint8_t>(rgb & 0xFF)};
       }
     }
+  }
+  detail.clear();
+  return CloudError::kNone;
+}
+
+namespace {
+/// Why an image cannot be read as `rows` rows of `cols` pixels of `bytes_per_pixel`; empty when it can.
+std::string imageLayoutProblem(const sensor_msgs::Image& img, uint32_t bytes_per_pixel) {
+  if (img.is_bigendian) return "big-endian images are not supported";
+  if (static_cast<uint64_t>(img.step) < static_cast<uint64_t>(img.width) * bytes_per_pixel)
+    return "step " + std::to_string(img.step) + " is shorter than width " + std::to_string(img.width) + " x " +
+           std::to_string(bytes_per_pixel) + " bytes";
+  if (static_cast<uint64_t>(img.data.size()) < static_cast<uint64_t>(img.step) * img.height)
+    return "data (" + std::to_string(img.data.size()) + " bytes) does not hold " + std::to_string(img.height) +
+           " rows of " + std::to_string(img.step) + " bytes";
+  return "";
+}
+}  // namespace
+
+CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
+                         const sensor_msgs::CameraInfo& info, std::size_t max_points, ColoredPoints& out,
+                         std::string& detail) {
+  out.clear();
+  const bool metres = depth.encoding == "32FC1";
+  if (!metres && depth.encoding != "16UC1") {
+    detail = "depth encoding '" + depth.encoding + "' is not supported; publish 32FC1 (metres) or 16UC1 (mm)";
+    return CloudError::kBadLayout;
+  }
+  std::string problem = imageLayoutProblem(depth, metres ? 4 : 2);
+  if (!problem.empty()) {
+    detail = "depth image: " + problem;
+    return CloudError::kBadLayout;
+  }
+  const uint64_t n = static_cast<uint64_t>(depth.width) * depth.height;
+  if (n > max_points) {
+    detail = std::to_string(depth.width) + " x " + std::to_string(depth.height) + " pixels exceed max_points " +
+             std::to_string(max_points);
+    return CloudError::kTooLarge;
+  }
+  const double fx = info.K[0];
+  const double fy = info.K[4];
+  const double cx = info.K[2];
+  const double cy = info.K[5];
+  if (!(fx > 0.0 && fy > 0.0 && std::isfinite(fx) && std::isfinite(fy) && std::isfinite(cx) && std::isfinite(cy))) {
+    detail = "camera_info K has no positive finite focal lengths (fx " + std::to_string(fx) + ", fy " +
+             std::to_string(fy) + "); is camera_info_in the depth camera's?";
+    return CloudError::kBadLayout;
+  }
+  if ((info.width != 0 || info.height != 0) && (info.width != depth.width || info.height != depth.height)) {
+    detail = "camera_info is " + std::to_string(info.width) + " x " + std::to_string(info.height) +
+             " but the depth image " + std::to_string(depth.width) + " x " + std::to_string(depth.height);
+    return CloudError::kBadLayout;
+  }
+  int channels = 0;
+  bool bgr = false;
+  if (color != nullptr) {
+    const std::string& e = color->encoding;
+    channels = (e == "rgb8" || e == "bgr8") ? 3 : (e == "rgba8" || e == "bgra8") ? 4 : 0;
+    bgr = e == "bgr8" || e == "bgra8";
+    if (channels == 0) {
+      detail = "color encoding '" + e + "' is not supported; publish rgb8, bgr8, rgba8 or bgra8";
+      return CloudError::kBadLayout;
+    }
+    if (color->width != depth.width || color->height != depth.height) {
+      detail = "the color image is " + std::to_string(color->width) + " x " + std::to_string(color->height) +
+               " but the depth image " + std::to_string(depth.width) + " x " + std::to_string(depth.height) +
+               " (register depth to color, or set ~rgbd_color false)";
+      return CloudError::kBadLayout;
+    }
+    problem = imageLayoutProblem(*color, static_cast<uint32_t>(channels));
+    if (!problem.empty()) {
+      detail = "color image: " + problem;
+      return CloudError::kBadLayout;
+    }
+  }
+  // Normalised ray per column and row, rounded to float once (as the bridge's packer does).
+  std::vector<float> x_n(depth.width);
+  std::vector<float> y_n(depth.height);
+  for (uint32_t u = 0; u < depth.width; ++u) x_n[u] = static_cast<float>((static_cast<double>(u) - cx) / fx);
+  for (uint32_t v = 0; v < depth.height; ++v) y_n[v] = static_cast<float>((static_cast<double>(v) - cy) / fy);
+  out.xyz.reserve(n);
+  if (color != nullptr) out.rgb.reserve(n);
+  for (uint32_t v = 0; v < depth.height; ++v) {
+    const uint8_t* row = depth.data.data() + static_cast<std::size_t>(v) * depth.step;
+    const uint8_t* crow = color != nullptr ? color->data.data() + static_cast<std::size_t>(v) * color->step : nullptr;
+    for (uint32_t u = 0; u < depth.width; ++u) {
+      float z;
+      if (metres) {
+        std::memcpy(&z, row + 4 * static_cast<std::size_t>(u), 4);
+      } else {
+        uint16_t mm;
+        std::memcpy(&mm, row + 2 * static_cast<std::size_t>(u), 2);
+        z = mm == 0 ? 0.0f : static_cast<float>(mm) * 0.001f;
+      }
+      if (!(z > 0.0f) || !std::isfinite(z)) continue;  // no return (NaN, inf, 0, negative)
+      out.xyz.emplace_back(z * x_n[u], z * y_n[v], z);
+      if (crow != nullptr) {
+        const uint8_t* c = crow + static_cast<std::size_t>(channels) * u;
+        out.rgb.push_back(bgr ? std::array<uint8_t, 3>{c[2], c[1], c[0]} : std::array<uint8_t, 3>{c[0], c[1], c[2]});
+      }
+    }
+  }
+  if (out.size() == 0) {
+    detail = "no pixel with a valid depth";
+    return CloudError::kEmpty;
   }
   detail.clear();
   return CloudError::kNone;

@@ -8,6 +8,8 @@
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/OccupancyGrid.h>
 #include <octomap_msgs/Octomap.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/ColorRGBA.h>
 #include <uav_msgs/GridLayers.h>
@@ -26,6 +28,14 @@ const char* toString(CloudError e);
 /// Returns the reason a cloud cannot be used; `detail` says what exactly is wrong.
 CloudError parseCloud(const sensor_msgs::PointCloud2& msg, std::size_t max_points, ColoredPoints& out,
                       std::string& detail);
+
+/// Back-projects a z-depth image (32FC1 metres, or 16UC1 millimetres with 0 = no return) through the pinhole
+/// K of `info` into optical-frame points, one per pixel with a finite positive depth, row-major, coloured from
+/// `color` (rgb8, bgr8, rgba8 or bgra8 of the same size; nullptr: no colour). The arithmetic is the sim
+/// bridge's cloud packing (uav_common.pointcloud.DepthImagePacker), so both inputs give the same points.
+CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
+                         const sensor_msgs::CameraInfo& info, std::size_t max_points, ColoredPoints& out,
+                         std::string& detail);
 
 RigidTransform fromMsg(const geometry_msgs::TransformStamped& tf);
 

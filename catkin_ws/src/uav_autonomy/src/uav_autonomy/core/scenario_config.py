@@ -406,12 +406,10 @@ class Scenario:
 def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
     """What the map server (and, with estimated depth, the depth nodes) need in a replay.
 
-    Ground-truth depth: the map camera's cloud. Estimated depth: the camera's color and
-    depth images and their camera infos, so the estimator and the evaluator run again.
+    The map camera's color and depth images and their camera infos: with ground-truth depth the map
+    server back-projects them itself; with estimated depth the estimator and the evaluator run again.
     """
     cam = f"/cameras/{scenario.map.camera}"
-    if scenario.depth_source is DepthSource.GROUND_TRUTH:
-        return (f"{cam}/points",)
     return (f"{cam}/color/image_raw", f"{cam}/color/camera_info", f"{cam}/depth/image_raw", f"{cam}/depth/camera_info")
 
 
