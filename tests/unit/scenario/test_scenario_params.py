@@ -14,7 +14,7 @@ from uav_autonomy.core.controller import ControllerConfig
 from uav_autonomy.core.features import FeatureConfig
 from uav_autonomy.core.mcdm import GoalSelectorConfig
 from uav_autonomy.core.planning import PlannerConfig
-from uav_autonomy.core.scenario_config import TimeMode, TimeSpec, load_scenario
+from uav_autonomy.core.scenario_config import DepthSource, TimeMode, TimeSpec, load_scenario
 from uav_autonomy.core.scenario_errors import ScenarioError
 from uav_autonomy.core.scenario_params import (
     RunContext,
@@ -92,6 +92,9 @@ def test_bridge_map_server_and_lockstep_settings(tmp_path: Path) -> None:
     assert ms["autosave"]["path"] == f"{tmp_path}/map_autosave.ot"
     assert ms["autosave"]["interval_s"] == base["autosave"]["interval_s"]
     assert ms["resolution"] == sar.map.resolution_m
+    assert ms["input"] == "rgbd"  # ground-truth depth: the map camera's images, back-projected by the node
+    estimated = replace(sar, depth_source=DepthSource.ESTIMATED)
+    assert node_params(estimated, "map_server", replace(ctx, map_server_base=base))["input"] == "cloud"
     cams = bridge_cameras(load_yaml_mapping(REPO / "config" / "sim_bridge.yaml"), sar)
     assert cams["nadir"]["pitch_deg"] == 90.0
     assert cams["forward"]["pitch_deg"] == 25.0

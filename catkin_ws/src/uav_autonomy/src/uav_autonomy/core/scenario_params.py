@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_autonomy.core.scenario_config import FEATURE_NAMES, MissionKind, Scenario, Strategy, TimeMode
+from uav_autonomy.core.scenario_config import FEATURE_NAMES, DepthSource, MissionKind, Scenario, Strategy, TimeMode
 from uav_autonomy.core.scenario_errors import ScenarioError
 
 __all__ = ["NODE_PARAMS", "RunContext", "deep_merge", "node_params", "scripted_request"]
@@ -92,6 +92,9 @@ def map_server(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     complete: the base is ``config/map_server.yaml``.
     """
     out: dict[str, Any] = {"backend": scenario.map.backend.value, "resolution": scenario.map.resolution_m}
+    # perception.launch wires the inputs: ground truth -> the map camera's depth and color images (the node
+    # back-projects them), estimated depth -> the depth estimator's cloud.
+    out["input"] = "rgbd" if scenario.depth_source is DepthSource.GROUND_TRUTH else "cloud"
     if ctx.run_dir:
         # Each run autosaves into its own folder (parallel runs never share a map file).
         suffix = "ot" if scenario.map.backend.value == "octomap" else "vdb"
