@@ -23,6 +23,7 @@ HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parents[1])]
 
 import numpy as np  # noqa: E402
+import rosgraph  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
 import tf2_ros  # noqa: E402
@@ -120,6 +121,20 @@ class MapChain(unittest.TestCase):
         cls.pub_cloud = rospy.Publisher("/test/points", PointCloud2, queue_size=2)
         cls.pub_odom = rospy.Publisher("/uav/ground_truth/odom", Odometry, queue_size=1, latch=True)
         wait_until(cls.pub_cloud.get_num_connections, lambda n: n > 0, timeout_s=30.0, describe="map_server subscribed")
+        # The chain must be listening before the first cloud: a map published before the planner subscribed
+        # would reach it only at the next change (latch is off here, as in the scenario runs).
+        master = rosgraph.Master(rospy.get_name())
+
+        def planner_inputs() -> set[str]:
+            _, subs, _ = master.getSystemState()
+            return {topic for topic, nodes in subs if "/path_planner" in nodes}
+
+        wait_until(
+            planner_inputs,
+            lambda t: {"/octomap_binary", "/map_server/layers", "/autonomy/goal"} <= t,
+            timeout_s=30.0,
+            describe="path_planner subscribed to the map and the goal",
+        )
         odom = Odometry()
         odom.header.frame_id = "map"
         odom.header.stamp = rospy.Time.from_sec(SIM_START_S)
@@ -155,9 +170,13 @@ class MapChain(unittest.TestCase):
         self.assertIn("score", feats[-1].names)
         goal = wait_until(lambda: list(self.goals), lambda g: len(g) > 0, timeout_s=30.0, describe="a goal")[-1]
         self.assertLess(math.hypot(goal.point.x - 60.0, goal.point.y), 1.5, goal.point)
+        # The planner may plan once before the ground's voxels reach it (over an empty voxel map, aiming at an
+        # unknown height); it replans when they arrive. Wait for the path over the ground's voxels.
         wait_until(
-            lambda: list(self.status), lambda s: len(s) > 0 and "over the voxel map" in s[-1], timeout_s=30.0,
-            describe="a path over the voxel map",
+            lambda: (list(self.status), list(self.paths)),
+            lambda sp: len(sp[0]) > 0 and "over the voxel map" in sp[0][-1] and len(sp[1]) > 0
+            and abs(path_points(sp[1][-1])[-1][2] - 14.0) < 1e-6,
+            timeout_s=30.0, describe="a path over the voxel map of the ground",
         )  # fmt: skip
         p1 = path_points(self.paths[-1])
         np.testing.assert_allclose(p1[0], [0.0, 0.0, 20.0])

@@ -237,11 +237,20 @@ class MapServerNode {
                          ? static_cast<int>(std::lround(p_.layers_resolution_m / p_.mapper.resolution_m))
                          : 1;
     if (p_.autosave_resume) resume();
-    pub_binary_ = nh_.advertise<octomap_msgs::Octomap>("octomap_binary", 1, p_.latch);
-    pub_full_ = nh_.advertise<octomap_msgs::Octomap>("octomap_full", 1, p_.latch);
-    pub_markers_ = nh_.advertise<visualization_msgs::MarkerArray>("occupied_cells_vis_array", 1, p_.latch);
-    pub_projected_ = nh_.advertise<nav_msgs::OccupancyGrid>("projected_map", 5, p_.latch);
-    pub_centers_ = nh_.advertise<sensor_msgs::PointCloud2>("octomap_point_cloud_centers", 1, p_.latch);
+    // Without latch the map outputs go out when the map changed; a subscriber that connects after the last
+    // change (e.g. a planner started late) gets the current map at the next publish tick.
+    const ros::SubscriberStatusCallback on_connect = [this](const ros::SingleSubscriberPublisher&) {
+      new_subscriber_ = true;
+    };
+    const ros::SubscriberStatusCallback none;
+    pub_binary_ = nh_.advertise<octomap_msgs::Octomap>("octomap_binary", 1, on_connect, none, ros::VoidConstPtr(), p_.latch);
+    pub_full_ = nh_.advertise<octomap_msgs::Octomap>("octomap_full", 1, on_connect, none, ros::VoidConstPtr(), p_.latch);
+    pub_markers_ = nh_.advertise<visualization_msgs::MarkerArray>("occupied_cells_vis_array", 1, on_connect, none,
+                                                                   ros::VoidConstPtr(), p_.latch);
+    pub_projected_ =
+        nh_.advertise<nav_msgs::OccupancyGrid>("projected_map", 5, on_connect, none, ros::VoidConstPtr(), p_.latch);
+    pub_centers_ = nh_.advertise<sensor_msgs::PointCloud2>("octomap_point_cloud_centers", 1, on_connect, none,
+                                                           ros::VoidConstPtr(), p_.latch);
     pub_layers_ = pnh_.advertise<uav_msgs::GridLayers>("layers", 1, true);
     pub_stats_ = pnh_.advertise<uav_msgs::MapInsertStats>("insert_stats", 50);
     srv_binary_ = nh_.advertiseService("octomap_binary", &MapServerNode::onGetBinary, this);
@@ -532,7 +541,9 @@ class MapServerNode {
       std::lock_guard<std::mutex> lock(map_mutex_);
       changed = map_changed_;
     }
-    if (changed) publishMapOutputs();
+    // A late subscriber (latch off): resend the current map once something has been published.
+    const bool late_subscriber = !p_.latch && published_once_ && new_subscriber_.exchange(false);
+    if (changed || late_subscriber) publishMapOutputs();
   }
 
   /// The octree to serialise: the map itself (octomap backend) or a conversion of the VDB grids.
@@ -556,6 +567,8 @@ class MapServerNode {
     visualization_msgs::MarkerArray markers;
     nav_msgs::OccupancyGrid projected;
     sensor_msgs::PointCloud2 centers;
+    published_once_ = true;
+    new_subscriber_ = false;  // this publish reaches every current subscriber
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
       map_changed_ = false;
@@ -771,6 +784,8 @@ class MapServerNode {
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
 
+  std::atomic<bool> new_subscriber_{false};  // a map output got a subscriber since the last publish
+  std::atomic<bool> published_once_{false};
   std::mutex map_mutex_;  // guards mapper_ and the *_changed_ flags
   bool map_changed_ = true;
   bool layers_changed_ = true;
