@@ -406,10 +406,14 @@ class Scenario:
 def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
     """What the map server (and, with estimated depth, the depth nodes) need in a replay.
 
-    The map camera's color and depth images and their camera infos: with ground-truth depth the map
-    server back-projects them itself; with estimated depth the estimator and the evaluator run again.
+    Ground-truth depth: the map camera's depth and color images and the depth camera's info (the map
+    server back-projects them itself). Estimated depth: both images and both camera infos, so the
+    estimator and the evaluator run again. Every topic listed has a reader in the replay (rosbag play
+    waits for one per played topic).
     """
     cam = f"/cameras/{scenario.map.camera}"
+    if scenario.depth_source is DepthSource.GROUND_TRUTH:
+        return (f"{cam}/depth/image_raw", f"{cam}/color/image_raw", f"{cam}/depth/camera_info")
     return (f"{cam}/color/image_raw", f"{cam}/color/camera_info", f"{cam}/depth/image_raw", f"{cam}/depth/camera_info")
 
 
