@@ -13,7 +13,6 @@ import math
 import shutil
 import sys
 import tempfile
-import threading
 import time
 import unittest
 from pathlib import Path
@@ -27,10 +26,10 @@ import rospy  # noqa: E402
 import rostest  # noqa: E402
 import tf2_ros  # noqa: E402
 from geometry_msgs.msg import Point, TransformStamped  # noqa: E402
+from helpers.sim_clock import SimClock  # noqa: E402
 from nav_msgs.msg import OccupancyGrid  # noqa: E402
 from octomap_msgs.msg import Octomap  # noqa: E402
 from octomap_msgs.srv import BoundingBoxQuery, GetOctomap  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from std_srvs.srv import Empty  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
@@ -98,12 +97,7 @@ class MapServerCheck(unittest.TestCase):
         rospy.init_node("map_server_check")
         cls.backend = rospy.get_param("~backend")
         cls.tmp = Path(tempfile.mkdtemp(prefix="map_server_check_"))
-        # Simulation time from SIM_START_S, 50 Hz.
-        cls.pub_clock = rospy.Publisher("/clock", Clock, queue_size=1)
-        cls.stop = threading.Event()
-        cls.sim_s = SIM_START_S
-        cls.clock_thread = threading.Thread(target=cls._clock_loop, daemon=True)
-        cls.clock_thread.start()
+        cls.clock = SimClock(SIM_START_S)  # simulation time from SIM_START_S, 50 Hz
         cls.tf_static = tf2_ros.StaticTransformBroadcaster()
         t = TransformStamped()
         t.header.stamp = rospy.Time.from_sec(SIM_START_S)
@@ -122,15 +116,8 @@ class MapServerCheck(unittest.TestCase):
         wait_until(cls.pub_cloud.get_num_connections, lambda n: n > 0, timeout_s=10.0, describe="map_server subscribed")
 
     @classmethod
-    def _clock_loop(cls) -> None:
-        while not cls.stop.is_set():
-            cls.pub_clock.publish(Clock(clock=rospy.Time.from_sec(cls.sim_s)))
-            cls.sim_s += 0.02
-            time.sleep(0.02)
-
-    @classmethod
     def tearDownClass(cls) -> None:
-        cls.stop.set()
+        cls.clock.stop()
         shutil.rmtree(cls.tmp, ignore_errors=True)
 
     # ------------------------------------------------------------------------------------------ helpers

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import math
 import sys
-import threading
-import time
 import unittest
 from pathlib import Path
 
@@ -24,7 +22,7 @@ import rospy  # noqa: E402
 import rostest  # noqa: E402
 import tf2_ros  # noqa: E402
 from geometry_msgs.msg import TransformStamped  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
+from helpers.sim_clock import SimClock  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
 from uav_common.pointcloud import unpack_xyzrgb  # noqa: E402
@@ -81,10 +79,7 @@ class MapServerRgbdCheck(unittest.TestCase):
     @classmethod
     def setUpClass(cls) -> None:
         rospy.init_node("map_server_rgbd_check")
-        cls.pub_clock = rospy.Publisher("/clock", Clock, queue_size=1)
-        cls.stop = threading.Event()
-        cls.sim_s = SIM_START_S
-        threading.Thread(target=cls._clock_loop, daemon=True).start()
+        cls.clock = SimClock(SIM_START_S)  # simulation time from SIM_START_S, 50 Hz
         cls.tf_static = tf2_ros.StaticTransformBroadcaster()
         t = TransformStamped()
         t.header.stamp = rospy.Time.from_sec(SIM_START_S)
@@ -103,15 +98,8 @@ class MapServerRgbdCheck(unittest.TestCase):
             wait_until(pub.get_num_connections, lambda n: n > 0, timeout_s=10.0, describe=f"{pub.name} subscribed")
 
     @classmethod
-    def _clock_loop(cls) -> None:
-        while not cls.stop.is_set():
-            cls.pub_clock.publish(Clock(clock=rospy.Time.from_sec(cls.sim_s)))
-            cls.sim_s += 0.02
-            time.sleep(0.02)
-
-    @classmethod
     def tearDownClass(cls) -> None:
-        cls.stop.set()
+        cls.clock.stop()
 
     def send(self, depth: Image, color: Image, cam: CameraInfo) -> MapInsertStats:
         n_before = len(self.stats)
