@@ -25,20 +25,22 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from uav_autonomy.core.features import frontier_feature  # noqa: E402
 from uav_common.waiting import wait_until  # noqa: E402
-from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget  # noqa: E402
+from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget, UnreachableGoal  # noqa: E402
 from uav_msgs.srv import SetTarget, SetWeights  # noqa: E402
 
 RES, OX, OY, W, H = 5.0, -200.0, -150.0, 80, 60
+MAST_CELL = (40, 20)  # (row, col): x in [-100, -95), y in [50, 55); 190 m + 40 m goal height > the 200 m ceiling
 
 
 def make_layers(stamp_s: float) -> tuple[GridLayers, dict[str, np.ndarray]]:
-    """A 400 x 300 m map: the middle observed, a 120 m ridge at x in [50, 60)."""
+    """A 400 x 300 m map: the middle observed, a 120 m ridge at x in [50, 60), a 190 m mast at MAST_CELL."""
     xs = OX + (np.arange(W) + 0.5) * RES
     ys = OY + (np.arange(H) + 0.5) * RES
     observed = np.zeros((H, W), dtype=bool)
     observed[10:50, 15:70] = True
     elev = np.where(observed, 0.0, np.nan).astype(np.float32)
     elev[:, (xs >= 50.0) & (xs < 60.0)] = np.where(observed[:, (xs >= 50.0) & (xs < 60.0)], 120.0, np.nan)
+    elev[MAST_CELL] = 190.0
     seen = np.where(observed, stamp_s - 30.0, np.nan).astype(np.float32)
     layers = {"elevation_m": elev, "last_seen_s": seen, "observed": observed.astype(np.float32)}
     msg = GridLayers()
@@ -71,6 +73,7 @@ class Pipeline(unittest.TestCase):
             ("/autonomy/feature_images/score/image_color", Image),
             ("/autonomy/feature_images/frontier/image", Image),
             ("/autonomy/feature_images/info", MapMetaData),
+            ("/autonomy/goal_unreachable", UnreachableGoal),
         ]:
             rospy.Subscriber(topic, mtype, lambda m, t=topic: cls.last.__setitem__(t, m))
         cls.pub_layers = rospy.Publisher("/map_server/layers", GridLayers, queue_size=1, latch=True)
@@ -164,6 +167,20 @@ class Pipeline(unittest.TestCase):
         self.assertGreaterEqual(pts[:, 2].max(), 150.0 - 1e-6)
         self.assertAlmostEqual(pts[-1, 2], 40.0, delta=1e-6)  # unknown elevation there: 0 + 40
         self.assertEqual(goal.header.frame_id, "map")
+
+        # A goal the planner cannot reach (the mast is above its ceiling): it says so, and the goal selector
+        # moves on to the best cell at least unreachable_radius_m (20 m) away instead of holding it forever.
+        mast_xy = (OX + (MAST_CELL[1] + 0.5) * RES, OY + (MAST_CELL[0] + 0.5) * RES)
+        self.assertTrue(self.set_target([Point(mast_xy[0], mast_xy[1], 0.0)]).success)
+        bad = self.wait_msg("/autonomy/goal_unreachable", lambda m: (m.goal.x, m.goal.y) == mast_xy)
+        self.assertIn("max_altitude_m 200.0", bad.reason)
+        reason = self.wait_msg("/autonomy/goal_reason", lambda m: m.reason == "goal_unreachable")
+        moved = (reason.goal.x, reason.goal.y)
+        self.assertGreater(math.dist(moved, mast_xy), 20.0)
+        self.assertLess(math.dist(moved, mast_xy), 20.0 + 2 * RES)  # the nearest cells to the target left
+        path = self.wait_msg("/autonomy/path", lambda m: (m.poses[-1].pose.position.x, m.poses[-1].pose.position.y)
+                             == moved)  # fmt: skip
+        self.assertLessEqual(max(p.pose.position.z for p in path.poses), 200.0)
 
         # Images: north-up, right size and encodings; info carries resolution and origin.
         img = self.wait_msg("/autonomy/feature_images/score/image_color", lambda m: True)

@@ -141,8 +141,45 @@ def test_target_moved_bypasses_hysteresis() -> None:
     assert d.reason is GoalReasonKind.TARGET_MOVED
 
 
+def test_an_unreachable_goal_is_dropped_and_its_surroundings_avoided_until_the_retry() -> None:
+    # The best cells (x = 85, 95) lie on a hill the planner cannot reach: without the report the selector
+    # would hold x = 95 forever (hysteresis) while the drone hovers short of it.
+    cfg = GoalSelectorConfig(
+        weights={"frontier": 1.0}, switch_margin=0.05, unreachable_radius_m=15.0, unreachable_retry_s=60.0
+    )
+    sel = GoalSelector(cfg)
+    values = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+    assert sel.select(_maps(values), drone_xy_m=(0.0, 0.0), now_s=10.0).cell == (0, 9)
+    assert sel.select(_maps(values), drone_xy_m=(0.0, 0.0), now_s=11.0).reason is GoalReasonKind.HYSTERESIS_KEPT
+    sel.mark_unreachable((95.0, 5.0), now_s=12.0)
+    d = sel.select(_maps(values), drone_xy_m=(0.0, 0.0), now_s=12.0)
+    # x = 85 and 95 are within 15 m of the unreachable goal: the best reachable cell is x = 75.
+    assert (d.cell, d.reason, d.changed) == ((0, 7), GoalReasonKind.GOAL_UNREACHABLE, True)
+    assert d.score == pytest.approx(0.8)
+    assert sel.unreachable_xy_m == [(95.0, 5.0)]
+    # Still excluded while the drone flies to x = 75 ...
+    assert sel.select(_maps(values), drone_xy_m=(30.0, 0.0), now_s=60.0).cell == (0, 7)
+    # ... and forgotten after the retry time: the hill is worth a new attempt.
+    again = sel.select(_maps(values), drone_xy_m=(30.0, 0.0), now_s=72.5)
+    assert again.cell == (0, 9)
+    assert sel.unreachable_xy_m == []
+
+
+def test_unreachable_everywhere_falls_back_to_the_plain_argmax() -> None:
+    sel = GoalSelector(GoalSelectorConfig(weights={"frontier": 1.0}, unreachable_radius_m=500.0))
+    values = [0.1] * 9 + [1.0]
+    sel.select(_maps(values), drone_xy_m=None, now_s=0.0)
+    sel.mark_unreachable((95.0, 5.0), now_s=0.0)
+    d = sel.select(_maps(values), drone_xy_m=None, now_s=1.0)
+    assert d.cell == (0, 9)  # nothing else is left: keep trying rather than fail
+    with pytest.raises(InvalidInputError, match="finite"):
+        sel.mark_unreachable((math.nan, 0.0), now_s=1.0)
+
+
 def test_config_validation() -> None:
     with pytest.raises(ConfigError, match="switch_margin"):
         from_mapping(GoalSelectorConfig, {"switch_margin": -1.0}, source="test")
+    with pytest.raises(ConfigError, match="unreachable_retry_s"):
+        from_mapping(GoalSelectorConfig, {"unreachable_retry_s": math.inf}, source="test")
     with pytest.raises(ConfigError, match="2 points"):
         from_mapping(GoalSelectorConfig, {"target_xy_m": [[0, 0], [1, 1]]}, source="test")

@@ -9,7 +9,14 @@ only if its score beats the current goal's *current* score by ``switch_margin``;
 a new best closer than ``min_goal_separation_m`` to the current goal must beat it
 by ``clear_improvement_margin``. The goal is replaced unconditionally when the
 drone has reached it (then cells within ``min_goal_separation_m`` of it are
-excluded), when the weights or the target change, or when it left the grid.
+excluded), when the weights or the target change, when it left the grid, or when
+the planner reported it unreachable.
+
+Unreachable goals (:meth:`GoalSelector.mark_unreachable`): the path planner could
+not reach a goal (e.g. a hill above its ceiling, a geofence). Every cell within
+``unreachable_radius_m`` of it is excluded for ``unreachable_retry_s`` seconds (the
+caller's clock), so the selector moves on instead of holding a goal the drone
+never reaches. If every cell is excluded, the exclusions are ignored.
 """
 
 from __future__ import annotations
@@ -74,13 +81,22 @@ class GoalSelectorConfig:
     clear_improvement_margin: float = 0.25
     goal_reached_radius_m: float = 8.0
     reevaluate_rate_hz: float = 1.0
+    unreachable_radius_m: float = 20.0
+    unreachable_retry_s: float = 120.0
 
     def __post_init__(self) -> None:
         try:
             validate_weights(self.weights)
         except InvalidInputError as err:
             raise ValueError(str(err)) from err
-        for name in ("switch_margin", "min_goal_separation_m", "clear_improvement_margin", "goal_reached_radius_m"):
+        for name in (
+            "switch_margin",
+            "min_goal_separation_m",
+            "clear_improvement_margin",
+            "goal_reached_radius_m",
+            "unreachable_radius_m",
+            "unreachable_retry_s",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 msg = f"{name} must be a finite number >= 0, got {value}"
@@ -161,6 +177,7 @@ class GoalReasonKind(enum.Enum):
     TARGET_MOVED = "target_moved"
     WEIGHTS_CHANGED = "weights_changed"
     GOAL_OFF_GRID = "goal_off_grid"
+    GOAL_UNREACHABLE = "goal_unreachable"
 
 
 @dataclass(frozen=True)
@@ -202,6 +219,7 @@ class GoalSelector:
         self._weights = validate_weights(config.weights)
         self._goal_xy_m: tuple[float, float] | None = None
         self._force: GoalReasonKind | None = None
+        self._unreachable: list[tuple[tuple[float, float], float]] = []  # (goal, excluded until, caller's clock)
 
     @property
     def weights(self) -> dict[str, float]:
@@ -220,14 +238,68 @@ class GoalSelector:
         """The target changed: the next decision ignores hysteresis."""
         self._force = GoalReasonKind.TARGET_MOVED
 
-    def select(self, features: FeatureMaps, *, drone_xy_m: tuple[float, float] | None) -> GoalDecision:
+    @property
+    def unreachable_xy_m(self) -> list[tuple[float, float]]:
+        """Goals reported unreachable whose exclusion has not expired (as of the last decision)."""
+        return [xy for xy, _ in self._unreachable]
+
+    def mark_unreachable(self, goal_xy_m: tuple[float, float], now_s: float) -> None:
+        """The planner found no path to ``goal_xy_m``: exclude the cells around it until ``now_s +
+        unreachable_retry_s``; if it is the current goal, the next decision picks another one.
+
+        Raises:
+            InvalidInputError: a non-finite goal or time.
+        """
+        x, y = (float(v) for v in goal_xy_m)
+        if not all(math.isfinite(v) for v in (x, y, now_s)):
+            msg = f"unreachable goal ({x}, {y}) at t={now_s} must be finite"
+            raise InvalidInputError(msg)
+        until = float(now_s) + self.config.unreachable_retry_s
+        self._unreachable = [(xy, t) for xy, t in self._unreachable if math.dist(xy, (x, y)) > 1e-6]
+        self._unreachable.append(((x, y), until))
+
+    def _is_unreachable(self, xy_m: tuple[float, float]) -> bool:
+        r = self.config.unreachable_radius_m
+        return any(math.dist(xy_m, u) <= r for u, _ in self._unreachable)
+
+    def _exclude_unreachable(self, score: FloatGrid, spec: GridSpec) -> FloatGrid:
+        """``score`` with NaN within ``unreachable_radius_m`` of every unreachable goal (unchanged if that
+        would leave no cell)."""
+        if not self._unreachable:
+            return score
+        r = self.config.unreachable_radius_m
+        xs = spec.cell_centers_x_m()
+        ys = spec.cell_centers_y_m()
+        masked = score.copy()
+        for (ux, uy), _ in self._unreachable:
+            c0, c1 = np.searchsorted(xs, [ux - r, ux + r], side="left")
+            r0, r1 = np.searchsorted(ys, [uy - r, uy + r], side="left")
+            c1, r1 = min(int(c1) + 1, len(xs)), min(int(r1) + 1, len(ys))
+            if c0 >= c1 or r0 >= r1:
+                continue
+            close = (xs[None, c0:c1] - ux) ** 2 + (ys[r0:r1, None] - uy) ** 2 <= r * r
+            window = masked[r0:r1, c0:c1]
+            window[close] = np.nan
+        return score if np.isnan(masked).all() else masked
+
+    def select(
+        self, features: FeatureMaps, *, drone_xy_m: tuple[float, float] | None, now_s: float | None = None
+    ) -> GoalDecision:
         """Score every cell and decide on the goal.
+
+        Args:
+            features: the feature maps.
+            drone_xy_m: the drone's position (None: unknown; "goal reached" is then never decided).
+            now_s: the caller's clock (e.g. ROS time), for expiring unreachable goals; None keeps them.
 
         Raises:
             InvalidInputError: no cell can be scored.
         """
+        if now_s is not None:
+            self._unreachable = [(xy, t) for xy, t in self._unreachable if t > now_s]
         spec = features.spec
-        score = weighted_score(features.scored(), self._weights)
+        raw_score = weighted_score(features.scored(), self._weights)
+        score = self._exclude_unreachable(raw_score, spec)
         best = argmax_cell(score)
         previous = self._goal_xy_m
         reason = GoalReasonKind.NEW_BEST
@@ -237,6 +309,8 @@ class GoalSelector:
             reason = GoalReasonKind.INITIAL
         elif current_cell is None:
             reason = GoalReasonKind.GOAL_OFF_GRID
+        elif self._is_unreachable(previous) and score is not raw_score:
+            reason = GoalReasonKind.GOAL_UNREACHABLE
         elif self._force is not None:
             reason = self._force
         elif drone_xy_m is not None and math.dist(drone_xy_m, previous) <= self.config.goal_reached_radius_m:
@@ -266,7 +340,7 @@ class GoalSelector:
             cell=chosen,
             spec=spec,
             elevation_m=elev,
-            score=float(score[chosen]),
+            score=float(raw_score[chosen]),
             values=values,
             weights=dict(self._weights),
             reason=reason,

@@ -7,6 +7,9 @@ Subscribes:
     ``~odom_topic`` (nav_msgs/Odometry, default ``/uav/ground_truth/odom``): for "goal reached".
     ``/autonomy/target_point`` (geometry_msgs/PointStamped): moves the target to this point at
     once (e.g. a detected person); NaN/inf points are rejected.
+    ``/autonomy/goal_unreachable`` (uav_msgs/UnreachableGoal from path_planner): no path to that goal;
+    the cells within ``unreachable_radius_m`` of it are excluded for ``unreachable_retry_s`` (ROS time)
+    and, if it is the current goal, another goal is chosen at once.
 Publishes:
     ``/autonomy/goal`` (geometry_msgs/PointStamped, map): goal cell centre; z = known elevation (NaN unknown).
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason): score, weights, values and contributions at the goal.
@@ -46,7 +49,7 @@ from uav_autonomy.ros.autonomy_conversions import (
 )
 from uav_autonomy.ros.autonomy_params import default_config_path, load_section
 from uav_common.config import ConfigError
-from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget
+from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget, UnreachableGoal
 from uav_msgs.srv import SetTarget, SetTargetResponse, SetWeights, SetWeightsResponse
 
 
@@ -72,6 +75,7 @@ class GoalSelectorNode:
         rospy.Subscriber("/autonomy/features", NumpyGridLayers, self.on_features, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/target_point", PointStamped, self.on_target_point, queue_size=10)
+        rospy.Subscriber("/autonomy/goal_unreachable", UnreachableGoal, self.on_unreachable, queue_size=10)
         rospy.Service("~set_weights", SetWeights, self.on_set_weights)
         rospy.Service("~set_target", SetTarget, self.on_set_target)
         rospy.Timer(rospy.Duration(1.0 / self.config.reevaluate_rate_hz), lambda _e: self.decide())
@@ -115,6 +119,20 @@ class GoalSelectorNode:
             return
         self._set_target(target, "topic")
 
+    def on_unreachable(self, msg: UnreachableGoal) -> None:
+        xy = (float(msg.goal.x), float(msg.goal.y))
+        try:
+            with self._lock:
+                self.core.mark_unreachable(xy, rospy.get_time())
+        except InvalidInputError as err:
+            rospy.logerr_throttle(5.0, f"goal_selector: ignoring unreachable goal: {err}")
+            return
+        rospy.loginfo(
+            f"goal_selector: ({xy[0]:.1f}, {xy[1]:.1f}) is unreachable ({msg.reason}); excluding "
+            f"{self.config.unreachable_radius_m:g} m around it for {self.config.unreachable_retry_s:g} s"
+        )
+        self.decide()
+
     def on_set_target(self, req: object) -> SetTargetResponse:
         try:
             target = target_from_points(req.points)  # type: ignore[attr-defined]
@@ -156,7 +174,7 @@ class GoalSelectorNode:
                 self.core.target_moved()
                 self._target_changed_s = None
             try:
-                decision = self.core.select(features, drone_xy_m=self._drone_xy)
+                decision = self.core.select(features, drone_xy_m=self._drone_xy, now_s=rospy.get_time())
             except InvalidInputError as err:
                 rospy.logerr_throttle(5.0, f"goal_selector: no goal: {err}")
                 return

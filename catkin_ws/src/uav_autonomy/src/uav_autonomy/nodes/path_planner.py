@@ -14,6 +14,8 @@ Publishes:
     path was found).
     ``~status`` (std_msgs/String, latched): the last planning event, e.g. ``astar over the voxel map
     (the map grew: the path ahead is blocked 31 m ahead): 5 waypoints, 48.2 ms``.
+    ``/autonomy/goal_unreachable`` (uav_msgs/UnreachableGoal): the goal it found no path to and why, so
+    that the goal selector picks another one.
 Parameters:
     ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``planner``;
     ``~overrides`` (dict, default {}).
@@ -36,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import rospy
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import Point, PointStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from std_msgs.msg import Header, String
@@ -68,7 +70,7 @@ from uav_autonomy.ros.autonomy_conversions import (
 )
 from uav_autonomy.ros.autonomy_params import default_config_path, load_section
 from uav_common.config import ConfigError
-from uav_msgs.msg import GridLayers
+from uav_msgs.msg import GridLayers, UnreachableGoal
 
 PathArray = npt.NDArray[np.float64]
 
@@ -108,6 +110,7 @@ class PathPlannerNode:
     def start(self) -> None:
         self.pub_path = rospy.Publisher("/autonomy/path", PathMsg, queue_size=1, latch=True)
         self.pub_status = rospy.Publisher("~status", String, queue_size=5, latch=True)
+        self.pub_unreachable = rospy.Publisher("/autonomy/goal_unreachable", UnreachableGoal, queue_size=10)
         rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
         rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
@@ -287,6 +290,13 @@ class PathPlannerNode:
             else:  # a new goal it cannot reach: keep the current path (the goal selector moves on)
                 rospy.logwarn_throttle(5.0, f"path_planner: {text}")
             self.pub_status.publish(String(data=text))
+            self.pub_unreachable.publish(
+                UnreachableGoal(
+                    header=Header(stamp=rospy.Time.now(), frame_id="map"),
+                    goal=Point(x=goal[0], y=goal[1], z=math.nan),
+                    reason=str(err),
+                )
+            )
             return
         ms = (time.perf_counter() - t0) * 1e3
         self._planned_goal = goal
