@@ -68,18 +68,89 @@ inline int64_t floorToInt(float v) {
   return i - static_cast<int64_t>(v < static_cast<float>(i));
 }
 
-/// PCL VoxelGrid's arithmetic (leaf = floor(p * (1 / leaf)) in float, row-major index over the cloud's leaf
-/// box, leaves in index order, float centroid, colour = truncated float mean) without its per-point index
-/// vector and comparison sort: runs of consecutive points in one leaf (neighbouring pixels) become one item,
-/// then a stable radix sort. Points of a leaf are summed in cloud order (PCL's order within a leaf varies).
-void fastVoxelGrid(ColoredPoints& points, double leaf_m, const float lo[3], const float hi[3]) {
+/// PCL VoxelGrid's arithmetic (leaf = floor(p * (1 / leaf)) in float, float centroid, colour = truncated float
+/// mean) without its per-point index vector and comparison sort. Each point finds its leaf through a dense
+/// map of the cloud's (x, y) leaf columns to a short list of the column's occupied leaves, and is summed into it
+/// at once, in cloud order. A camera's neighbouring pixels fall into the same or recently used leaves, so the
+/// sums stay in cache (sorting the points by leaf and then gathering them was the cost). Leaves come out in the
+/// order they were first hit (PCL: leaf index order; the map built from them is the same either way).
+struct LeafSum {
+  int32_t iz;
+  uint32_t next;  // next leaf of the same column, or kNoLeaf
+  uint32_t count;
+  float sx, sy, sz, sr, sg, sb;
+};
+constexpr uint32_t kNoLeaf = std::numeric_limits<uint32_t>::max();
+constexpr uint64_t kMaxColumns = 1ULL << 22;  // 16 MiB of column heads; wider clouds use the sorting variant
+
+thread_local std::vector<uint32_t> tl_column_head;  // all kNoLeaf between calls
+thread_local std::vector<LeafSum> tl_leaves;
+thread_local std::vector<uint32_t> tl_leaf_column;
+
+bool columnVoxelGrid(ColoredPoints& points, double leaf_m, const int32_t min_b[3], const int32_t div_b[3]) {
+  const uint64_t columns = static_cast<uint64_t>(div_b[0]) * static_cast<uint64_t>(div_b[1]);
+  if (columns > kMaxColumns) return false;
   const float inv = 1.0f / static_cast<float>(leaf_m);
-  int32_t min_b[3];
-  int32_t div_b[3];
-  for (int a = 0; a < 3; ++a) {
-    min_b[a] = static_cast<int32_t>(std::floor(lo[a] * inv));
-    div_b[a] = static_cast<int32_t>(std::floor(hi[a] * inv)) - min_b[a] + 1;
+  std::vector<uint32_t>& head = tl_column_head;
+  if (head.size() < columns) head.assign(columns, kNoLeaf);
+  std::vector<LeafSum>& leaves = tl_leaves;
+  std::vector<uint32_t>& leaf_column = tl_leaf_column;
+  leaves.clear();
+  leaf_column.clear();
+  const bool color = points.hasColor();
+  const std::size_t n = points.size();
+  const uint64_t stride_y = static_cast<uint64_t>(div_b[0]);
+  uint64_t last_col = ~0ULL;
+  int64_t last_iz = 0;
+  uint32_t cur = kNoLeaf;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Point3& p = points.xyz[i];
+    const int64_t ix = floorToInt(p(0) * inv) - min_b[0];
+    const int64_t iy = floorToInt(p(1) * inv) - min_b[1];
+    const int64_t iz = floorToInt(p(2) * inv) - min_b[2];
+    const uint64_t col = static_cast<uint64_t>(ix) + static_cast<uint64_t>(iy) * stride_y;
+    if (col != last_col || iz != last_iz) {  // not the previous point's leaf: look it up in its column
+      uint32_t e = head[col];
+      while (e != kNoLeaf && leaves[e].iz != iz) e = leaves[e].next;
+      if (e == kNoLeaf) {
+        e = static_cast<uint32_t>(leaves.size());
+        leaves.push_back({static_cast<int32_t>(iz), head[col], 0, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f});
+        leaf_column.push_back(static_cast<uint32_t>(col));
+        head[col] = e;
+      }
+      cur = e;
+      last_col = col;
+      last_iz = iz;
+    }
+    LeafSum& l = leaves[cur];
+    l.sx += p(0);
+    l.sy += p(1);
+    l.sz += p(2);
+    if (color) {
+      l.sr += static_cast<float>(points.rgb[i][0]);
+      l.sg += static_cast<float>(points.rgb[i][1]);
+      l.sb += static_cast<float>(points.rgb[i][2]);
+    }
+    ++l.count;
   }
+  for (uint32_t col : leaf_column) head[col] = kNoLeaf;
+  ColoredPoints& out = tl_out;
+  out.clear();
+  out.xyz.reserve(leaves.size());
+  if (color) out.rgb.reserve(leaves.size());
+  for (const LeafSum& l : leaves) {
+    const auto fc = static_cast<float>(l.count);
+    out.xyz.emplace_back(l.sx / fc, l.sy / fc, l.sz / fc);
+    if (color)
+      out.rgb.push_back({static_cast<uint8_t>(l.sr / fc), static_cast<uint8_t>(l.sg / fc), static_cast<uint8_t>(l.sb / fc)});
+  }
+  std::swap(points, out);
+  return true;
+}
+
+/// The same leaves for clouds too wide for the column map (e.g. a distant horizon): runs of consecutive points
+/// in one leaf become one item, then a stable radix sort by leaf index and a gather.
+void sortingVoxelGrid(ColoredPoints& points, const float inv, const int32_t min_b[3], const int32_t div_b[3]) {
   const uint64_t mul_y = static_cast<uint64_t>(div_b[0]);
   const uint64_t mul_z = mul_y * static_cast<uint64_t>(div_b[1]);
   const std::size_t n = points.size();
@@ -129,6 +200,17 @@ void fastVoxelGrid(ColoredPoints& points, double leaf_m, const float lo[3], cons
     a = b;
   }
   std::swap(points, out);
+}
+
+void fastVoxelGrid(ColoredPoints& points, double leaf_m, const float lo[3], const float hi[3]) {
+  const float inv = 1.0f / static_cast<float>(leaf_m);
+  int32_t min_b[3];
+  int32_t div_b[3];
+  for (int a = 0; a < 3; ++a) {
+    min_b[a] = static_cast<int32_t>(std::floor(lo[a] * inv));
+    div_b[a] = static_cast<int32_t>(std::floor(hi[a] * inv)) - min_b[a] + 1;
+  }
+  if (!columnVoxelGrid(points, leaf_m, min_b, div_b)) sortingVoxelGrid(points, inv, min_b, div_b);
 }
 
 }  // namespace

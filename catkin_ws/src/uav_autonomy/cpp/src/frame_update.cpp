@@ -164,44 +164,60 @@ struct ByteMap {
   void set(const Key& k, uint8_t v) { cells[index(k)] = v; }
 
   /// Appends the Morton codes of all cells equal to 1, in Morton order, and zeroes the map.
+  ///
+  /// One pass over the box reads each brick's 64 rows of 8 cells as words; the set cells of a brick go into a
+  /// 512-bit mask indexed by their Morton code within the brick, so emitting them in Morton order is a walk
+  /// over set bits (no per-cell loop over the 512 cells of every non-empty brick).
   void scan(std::vector<uint64_t>& out) {
     struct BrickRef {
       uint64_t morton;
-      std::size_t base;  // index of the brick's first cell
+      uint64_t bits[8];  // bit l: the cell with Morton code l within the brick is set
     };
     std::vector<BrickRef> bricks;
+    unsigned spread[8];
+    for (unsigned i = 0; i < 8; ++i) spread[i] = static_cast<unsigned>(spreadBits3(i));
     const int nb[3] = {n[0] / 8, n[1] / 8, n[2] / 8};
     for (int bz = 0; bz < nb[2]; ++bz) {
       for (int by = 0; by < nb[1]; ++by) {
         for (int bx = 0; bx < nb[0]; ++bx) {
           const std::size_t base = static_cast<std::size_t>(bx) * 8 + static_cast<std::size_t>(by) * 8 * stride[1] +
                                    static_cast<std::size_t>(bz) * 8 * stride[2];
-          uint64_t any = 0;
-          for (int z = 0; z < 8; ++z) {
-            for (int y = 0; y < 8; ++y) {
+          BrickRef br{};
+          bool any = false;
+          for (unsigned z = 0; z < 8; ++z) {
+            for (unsigned y = 0; y < 8; ++y) {
+              uint8_t* row = &cells[base + y * stride[1] + z * stride[2]];
               uint64_t w;
-              std::memcpy(&w, &cells[base + y * stride[1] + z * stride[2]], 8);
-              any |= w;
+              std::memcpy(&w, row, 8);
+              if (w == 0) continue;
+              std::memset(row, 0, 8);
+              any = true;
+              uint64_t m = w & 0x0101010101010101ULL;  // cells equal to 1 (hits were reset to 0)
+              const unsigned yz = (spread[y] << 1) | (spread[z] << 2);
+              while (m != 0) {
+                const unsigned l = spread[static_cast<unsigned>(__builtin_ctzll(m)) >> 3] | yz;
+                br.bits[l >> 6] |= 1ULL << (l & 63U);
+                m &= m - 1;
+              }
             }
           }
-          if (any == 0) continue;
+          if (!any) continue;
           const Key bk(static_cast<uint16_t>((k0[0] >> 3) + bx), static_cast<uint16_t>((k0[1] >> 3) + by),
                        static_cast<uint16_t>((k0[2] >> 3) + bz));
-          bricks.push_back({mortonOf(bk), base});
+          br.morton = mortonOf(bk);
+          bricks.push_back(br);
         }
       }
     }
     std::sort(bricks.begin(), bricks.end(), [](const BrickRef& a, const BrickRef& b) { return a.morton < b.morton; });
     for (const BrickRef& br : bricks) {
       const uint64_t top = br.morton << 9;
-      for (unsigned l = 0; l < 512; ++l) {
-        const auto lx = static_cast<std::size_t>(compactBits3(l));
-        const auto ly = static_cast<std::size_t>(compactBits3(l >> 1));
-        const auto lz = static_cast<std::size_t>(compactBits3(l >> 2));
-        if (cells[br.base + lx + ly * stride[1] + lz * stride[2]] == 1) out.push_back(top | l);
-      }
-      for (int z = 0; z < 8; ++z) {
-        for (int y = 0; y < 8; ++y) std::memset(&cells[br.base + y * stride[1] + z * stride[2]], 0, 8);
+      for (unsigned k = 0; k < 8; ++k) {
+        uint64_t b = br.bits[k];
+        while (b != 0) {
+          out.push_back(top | (static_cast<uint64_t>(k) << 6) | static_cast<uint64_t>(__builtin_ctzll(b)));
+          b &= b - 1;
+        }
       }
     }
   }

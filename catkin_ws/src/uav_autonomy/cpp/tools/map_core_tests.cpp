@@ -19,6 +19,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -784,6 +785,26 @@ TEST(voxel_grid_filter_downsamples) {
   CHECK(st2.voxel_grid_skipped && huge.size() == 2);
 }
 
+/// Points (one per voxel-grid leaf) in the leaf order of floor(p / leaf) by (z, y, x), as PCL orders its leaves.
+void sortByLeaf(ColoredPoints& pts, double leaf) {
+  std::vector<std::size_t> order(pts.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  const auto inv = static_cast<float>(1.0 / leaf);
+  auto key = [&](std::size_t i) {
+    const Point3& p = pts.xyz[i];
+    return std::array<int64_t, 3>{static_cast<int64_t>(std::floor(p(2) * inv)),
+                                  static_cast<int64_t>(std::floor(p(1) * inv)),
+                                  static_cast<int64_t>(std::floor(p(0) * inv))};
+  };
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return key(a) < key(b); });
+  ColoredPoints out;
+  for (std::size_t i : order) {
+    out.xyz.push_back(pts.xyz[i]);
+    if (pts.hasColor()) out.rgb.push_back(pts.rgb[i]);
+  }
+  pts = out;
+}
+
 TEST(fast_voxel_grid_reproduces_pcl_voxel_grid) {
   // Realistic frames (a nadir camera over buildings and trees; oblique too) at several leaf sizes: the same
   // leaves in the same order, centroids equal up to float summation order, colours within one level.
@@ -802,6 +823,9 @@ TEST(fast_voxel_grid_reproduces_pcl_voxel_grid) {
       FilterStats sr;
       voxelGridFilter(fast, leaf, sf, VoxelFilterImpl::kFast);
       voxelGridFilter(ref, leaf, sr, VoxelFilterImpl::kPcl);
+      // kFast emits leaves in first-hit order, PCL in leaf index order: compare in leaf index order
+      sortByLeaf(fast, leaf);
+      sortByLeaf(ref, leaf);
       CHECK_MSG(fast.size() == ref.size() && sf.points_out == sr.points_out,
                 "leaf " << leaf << ": " << fast.size() << " vs " << ref.size() << " points");
       CHECK(fast.size() < f.map_points[i].size() && fast.size() > 50);
@@ -814,6 +838,23 @@ TEST(fast_voxel_grid_reproduces_pcl_voxel_grid) {
     }
   }
   CHECK(compared > 1000);
+  // A cloud too wide for kFast's column map (two far returns make it 2.4 km across at 1 m leaves: 5.8 M columns)
+  // takes its sorting variant: the same leaves again.
+  ColoredPoints wide = f.map_points[0];
+  for (float s : {-1200.0f, 1200.0f}) {
+    wide.xyz.emplace_back(s, s, wide.xyz[0](2));
+    wide.rgb.push_back({10, 20, 30});
+  }
+  ColoredPoints wide_ref = wide;
+  FilterStats sw;
+  FilterStats swr;
+  voxelGridFilter(wide, 1.0, sw, VoxelFilterImpl::kFast);
+  voxelGridFilter(wide_ref, 1.0, swr, VoxelFilterImpl::kPcl);
+  CHECK(!sw.voxel_grid_skipped && wide.size() == wide_ref.size() && wide.size() > 100);
+  sortByLeaf(wide, 1.0);
+  sortByLeaf(wide_ref, 1.0);
+  for (std::size_t k = 0; k < std::min(wide.size(), wide_ref.size()); ++k)
+    CHECK_MSG((wide.xyz[k] - wide_ref.xyz[k]).norm() < 1e-4f, "wide cloud point " << k);
   CHECK(voxelFilterImplFromString("pcl") == VoxelFilterImpl::kPcl && toString(VoxelFilterImpl::kFast) == "fast");
   bool threw = false;
   try {

@@ -21,7 +21,8 @@ struct RigidTransform {
 };
 
 /// Who downsamples: kFast (default) reproduces pcl::VoxelGrid's leaves, centroids and mean colours (float
-/// summation order within a leaf aside) ~4x faster; kPcl runs pcl::VoxelGrid itself.
+/// summation order within a leaf aside; leaves in first-hit order instead of PCL's leaf index order, which the
+/// map does not depend on) several times faster; kPcl runs pcl::VoxelGrid itself.
 enum class VoxelFilterImpl { kFast, kPcl };
 std::string toString(VoxelFilterImpl impl);
 /// Parses "fast" or "pcl"; throws std::invalid_argument otherwise.
@@ -52,7 +53,8 @@ struct FilterStats {
 void transformAndFilter(const ColoredPoints& sensor_points, const RigidTransform& map_from_sensor,
                         const FilterOptions& options, ColoredPoints& out, FilterStats& stats);
 
-/// PCL VoxelGrid (centroid and mean colour per leaf, leaves in PCL's order), in place. Skipped
+/// PCL VoxelGrid (centroid and mean colour per leaf; kPcl: leaves in PCL's order, kFast: in the order they are
+/// first hit), in place. Skipped
 /// (stats.voxel_grid_skipped) when the cloud's extent would overflow PCL's voxel index.
 void voxelGridFilter(ColoredPoints& points, double leaf_m, FilterStats& stats,
                      VoxelFilterImpl impl = VoxelFilterImpl::kFast);
