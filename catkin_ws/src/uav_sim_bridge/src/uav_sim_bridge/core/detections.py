@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ class DetectionConfig:
             msg = "max_range_m must be > 0 and min_pixels >= 1"
             raise ValueError(msg)
 
-    @property
+    @cached_property
     def class_ids(self) -> frozenset[ObjectClass]:
         return frozenset(ObjectClass.from_label(c) for c in self.classes)
 
@@ -69,16 +70,18 @@ def visible_candidates(
     """Ids of the objects of ``cfg.classes`` with at least ``min_pixels`` visible pixels and within range."""
     objs = objects if isinstance(objects, Mapping) else {o.instance_id: o for o in objects}
     ids = np.asarray(instance_id)
-    counts = np.bincount(ids.ravel().astype(np.int64), minlength=1)
+    counts = np.bincount(ids.ravel(), minlength=1)
     eye = t_map_optical.translation_m
-    return sorted(
-        iid
-        for iid, o in objs.items()
-        if o.object_class in cfg.class_ids
-        and iid < len(counts)
-        and counts[iid] >= cfg.min_pixels
-        and float(np.linalg.norm(o.center_m - eye)) <= cfg.max_range_m
-    )
+    wanted = cfg.class_ids
+    max_range_sq = cfg.max_range_m * cfg.max_range_m
+    out = []
+    for iid in np.flatnonzero(counts >= cfg.min_pixels):  # the few ids in the image, not every object
+        o = objs.get(int(iid))
+        if o is not None and o.object_class in wanted:
+            d = o.center_m - eye
+            if float(d @ d) <= max_range_sq:
+                out.append(int(iid))
+    return out
 
 
 def ground_truth_detections(
