@@ -7,7 +7,7 @@ Two runs over the same simulated time, in the same benchmark run:
 
 * ``config/scenarios/loiter.yaml`` (the MCDM autonomy, default cameras and map);
 * ``bench/scenarios/loiter_lawnmower.yaml`` (the baseline: a SCRIPTED lawnmower over a 200 m x 200 m
-  box around home, same world, cameras, map, altitude and cruise speed).
+  box around home, same world, cameras, map and cruise speed, 110 m above home to clear the hills).
 
 Results (``bench/results/latest.jsonl``):
 
@@ -130,6 +130,13 @@ def run(scenario: Path, run_dir: Path, sim_seconds: float) -> tuple[dict[str, An
     return metrics, pace, cpu.per_node()
 
 
+def _flight(metrics: dict[str, Any], label: str) -> str:
+    """Mean height above ground and collisions: the higher a run flies, the more each frame maps."""
+    flight = metrics.get("flight") or {}
+    collisions = (metrics.get("collisions") or {}).get("count", 0)
+    return f"{label} mean {float(flight.get('agl_mean_m', float('nan'))):.0f} m AGL, {collisions} collisions"
+
+
 def dropped_pct(metrics: dict[str, Any]) -> float:
     m = metrics.get("map_input") or {}
     received = float(m.get("clouds_received", 0))
@@ -160,7 +167,8 @@ def main() -> int:
         mower_pace["real_time_factor"],
         target=f">= {RTF_TARGET:g}",
         met=rtf >= RTF_TARGET,
-        notes=f"{notes} (sim {loiter_pace['sim_s']:.0f} s in {loiter_pace['wall_s']:.0f} s wall)",
+        notes=f"{notes} (sim {loiter_pace['sim_s']:.0f} s in {loiter_pace['wall_s']:.0f} s wall); "
+        f"{_flight(loiter, 'loiter')}; {_flight(mower, 'lawnmower')}",
     )
     record(
         "scenario.loiter.clouds_dropped_pct",

@@ -164,6 +164,26 @@ def test_collisions_with_walls_and_trees_but_not_ground_or_roofs(engine_of, smal
     assert {h.object_class for h in hits} == {ObjectClass.TREE}
 
 
+def test_flying_into_the_terrain_is_a_collision(engine_of, small_world: World) -> None:
+    # JSBSim's flat ground is clamped to the gear when the terrain jumps above it, so only the bridge can tell
+    # that the vehicle went into a hillside: a swept position deeper than its radius below the surface.
+    quiet = lambda n: False  # noqa: E731
+    xs = np.linspace(-60.0, 60.0, 121)
+    heights = small_world.height_at(xs, np.zeros_like(xs))
+    low, high = int(np.argmin(heights)), int(np.argmax(heights))
+    assert heights[high] - heights[low] > 2.0, "the test world needs some relief"
+    cruise_z = float(heights[low]) + 1.0  # 1 m above the low point, below the high one
+    eng = engine_of()
+    first = eng.step(_state(0.0, (float(xs[low]), 0.0, cruise_z)), home=None, wanted=quiet, want_detections=False)
+    assert first.new_contacts == []
+    hits = eng.step(_state(5.0, (float(xs[high]), 0.0, cruise_z)), home=None, wanted=quiet, want_detections=False)
+    terrain = [h for h in hits.new_contacts if h.object_class is ObjectClass.TERRAIN]
+    assert len(terrain) == 1
+    x_hit, _, z_ground = terrain[0].point_m
+    assert z_ground > cruise_z + eng.cfg.collision.vehicle_radius_m  # where the path went under the surface
+    assert min(xs[low], xs[high]) <= x_hit <= max(xs[low], xs[high])
+
+
 def test_move_object_and_errors(engine_of, small_world: World) -> None:
     eng = engine_of()
     person = small_world.objects_of_class(ObjectClass.PERSON)[0]

@@ -6,6 +6,12 @@ below the vehicle's centre (landing on a roof or a car).  Anything else the sphe
 touches (walls, tree crowns and trunks, people, the sides of vehicles) is.  The path
 between two states is swept in steps of half the radius, so a fast vehicle cannot
 tunnel through a thin object.
+
+Flying into a hillside is a collision with the terrain: a swept position whose centre
+is more than the vehicle's radius below the terrain surface.  (The SITL cannot tell:
+JSBSim has one flat ground height, which it clamps to the landing gear when the
+reported terrain jumps above it, so without this check the vehicle would fly on
+inside the hill.)
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID
 from uav_sim_bridge.core.objects import ObjectPose
 from uav_sim_bridge.core.spatial import TriangleGrid
 from uav_sim_bridge.core.world import World
@@ -57,6 +64,7 @@ class CollisionChecker:
     def __init__(self, world: World, cfg: CollisionConfig) -> None:
         self.cfg = cfg
         self._classes = world.instance_class
+        self._terrain = world.terrain
         self._static: TriangleGrid = world.static_grid
         cls = world.instance_class[world.face_instance]
         dyn = (cls == ObjectClass.PERSON) | (cls == ObjectClass.VEHICLE)
@@ -103,6 +111,12 @@ class CollisionChecker:
             n = min(n, 200)
             samples = prev + (cur - prev) * (np.arange(1, n + 1) / n)[:, None]
         found: dict[int, Contact] = {}
+        ground_m = self._terrain.height_at(samples[:, 0], samples[:, 1])
+        buried = np.flatnonzero(samples[:, 2] < ground_m - r)
+        if len(buried):
+            k = int(buried[0])
+            point = (float(samples[k, 0]), float(samples[k, 1]), float(ground_m[k]))
+            found[TERRAIN_INSTANCE_ID] = Contact(TERRAIN_INSTANCE_ID, ObjectClass.TERRAIN, point)
         for p in samples:
             hits: list[_Hit] = [(c.instance_id, c.point_m, c.normal) for c in self._static.sphere_contacts(p, r)]
             hits += self._dynamic_contacts(p, r)
