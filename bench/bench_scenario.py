@@ -7,7 +7,7 @@ Two runs over the same simulated time, in the same benchmark run:
 
 * ``config/scenarios/loiter.yaml`` (the MCDM autonomy, default cameras and map);
 * ``bench/scenarios/loiter_lawnmower.yaml`` (the baseline: a SCRIPTED lawnmower over a 200 m x 200 m
-  box around home, same world, cameras, map and cruise speed, 110 m above home to clear the hills).
+  box around home, same world, cameras, map and cruise speed, following the terrain 50 m above it).
 
 Results (``bench/results/latest.jsonl``):
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
 
-from uav_autonomy.core.patterns import expanding_square, lawnmower, waypoint_list
+from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower, waypoint_list
 from uav_autonomy.errors import InvalidInputError
 
 
@@ -58,3 +59,35 @@ def test_pattern_input_errors() -> None:
     with pytest.raises(InvalidInputError, match="finite"):
         waypoint_list([[0, 0, math.inf]])
     assert waypoint_list([[1, 2, 3]]).shape == (1, 3)
+
+
+def _hill(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """An 80 m hill at (100, 0) on flat ground at 0 m, 60 m wide."""
+    return 80.0 * np.exp(-(((np.asarray(x) - 100.0) ** 2 + np.asarray(y) ** 2) / (2 * 30.0**2)))
+
+
+def test_follow_terrain_keeps_the_height_above_the_ground_everywhere() -> None:
+    # A track straight over the hill at 30 m above home would go through it; following the terrain it clears
+    # the ground by at least 40 m everywhere along the flown straight lines, and flies 40 m over flat ground.
+    track = np.array([[-100.0, 0.0, 30.0], [300.0, 0.0, 30.0], [300.0, 60.0, 30.0], [-100.0, 60.0, 30.0]])
+    flown = follow_terrain(track, _hill, 40.0, max_leg_m=25.0, sample_m=2.0)
+    legs = np.linalg.norm(np.diff(flown[:, :2], axis=0), axis=1)
+    assert legs.max() <= 25.0 + 1e-9
+    for corner in track[:, :2]:  # the pattern's corners are kept
+        assert np.min(np.linalg.norm(flown[:, :2] - corner, axis=1)) < 1e-9
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    dense = np.concatenate([a + (b - a) * t for a, b in itertools.pairwise(flown)])
+    clearance = dense[:, 2] - _hill(dense[:, 0], dense[:, 1])
+    assert clearance.min() >= 40.0 - 0.05
+    assert flown[0, 2] == pytest.approx(40.0, abs=1e-3)  # the hill is 80 * exp(-22) m there
+    assert flown[:, 2].max() > 80.0 + 40.0 - 1.0
+    # one waypoint: straight above the ground
+    np.testing.assert_allclose(follow_terrain([[100.0, 0.0, 0.0]], _hill, 10.0), [[100.0, 0.0, 90.0]])
+
+
+def test_follow_terrain_errors() -> None:
+    outside = lambda x, y: np.where(np.asarray(x) > 50.0, np.nan, 0.0)  # noqa: E731
+    with pytest.raises(InvalidInputError, match="leaves the terrain model at"):
+        follow_terrain([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]], outside, 30.0)
+    with pytest.raises(InvalidInputError, match="agl_m"):
+        follow_terrain([[0.0, 0.0, 0.0]], _hill, 0.0)

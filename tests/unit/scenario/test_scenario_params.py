@@ -7,6 +7,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -55,13 +56,35 @@ def test_sar_weights_and_target_reach_the_goal_selector() -> None:
 
 
 def test_scripted_requests() -> None:
-    mower = scripted_request(load_scenario(REPO / "config/scenarios/sar_lawnmower.yaml"))
+    mower_scenario = load_scenario(REPO / "config/scenarios/sar_lawnmower.yaml")
+    assert mower_scenario.search is not None
+    assert mower_scenario.search.scripted_alt_reference == "terrain"
+    with pytest.raises(ScenarioError, match="needs the world's terrain"):
+        scripted_request(mower_scenario)
+    # Above home: the controller builds the pattern itself.
+    home = replace(mower_scenario, search=replace(mower_scenario.search, scripted_alt_reference="home"))
+    mower = scripted_request(home)
     assert mower["pattern"] == "lawnmower"
     assert len(mower["points"]) == 4
-    square = scripted_request(load_scenario(REPO / "config/scenarios/sar_expanding_square.yaml"))
+    # Above the terrain: explicit waypoints, 40 m over a ground that rises 1 m per 10 m eastwards.
+    slope = lambda x, y: 0.1 * (np.asarray(x) + 250.0)  # noqa: E731
+    planned = scripted_request(mower_scenario, slope)
+    assert planned["pattern"] == "waypoints"
+    pts = np.asarray(planned["points"])
+    assert len(pts) > 20
+    assert np.all(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1) <= 25.0 + 1e-9)
+    assert pts[:, 2].min() == pytest.approx(40.0, abs=3.0)
+    assert pts[:, 2].max() == pytest.approx(90.0, abs=3.0)
+    assert np.all(pts[:, 2] >= slope(pts[:, 0], pts[:, 1]) + 40.0 - 1e-9)
+    square_scenario = load_scenario(REPO / "config/scenarios/sar_expanding_square.yaml")
+    assert square_scenario.search is not None
+    square = scripted_request(
+        replace(square_scenario, search=replace(square_scenario.search, scripted_alt_reference="home"))
+    )
     assert square["pattern"] == "expanding_square"
     assert square["points"] == [(0.0, -400.0, 0.0)]
     assert square["max_radius_m"] == pytest.approx((250.0**2 + 350.0**2) ** 0.5)
+    assert scripted_request(square_scenario, slope)["points"][0][:2] == (0.0, -400.0)
     with pytest.raises(ScenarioError, match="not a scripted baseline"):
         scripted_request(load_scenario(REPO / "config/scenarios/loiter.yaml"))
 

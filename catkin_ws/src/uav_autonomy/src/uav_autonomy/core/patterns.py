@@ -1,13 +1,17 @@
-"""Scripted flight patterns as ENU waypoint arrays: waypoint list, lawnmower, expanding square.
+"""Scripted flight patterns as ENU waypoint arrays: waypoint list, lawnmower, expanding square,
+and terrain following.
 
 All patterns return ``(N, 3)`` float64 waypoints in ``map`` (ENU, metres); z is the
 flight altitude relative to home (the same datum as the DEM), constant over the
-pattern unless the waypoints say otherwise.
+pattern unless the waypoints say otherwise. :func:`follow_terrain` turns a pattern
+into one flown a fixed height above a prior terrain model (what a ground station's
+survey does in its terrain frame with SRTM tiles).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -15,7 +19,7 @@ import numpy.typing as npt
 from uav_autonomy.core.geometry2d import as_polygon
 from uav_autonomy.errors import InvalidInputError
 
-__all__ = ["expanding_square", "lawnmower", "waypoint_list"]
+__all__ = ["expanding_square", "follow_terrain", "lawnmower", "waypoint_list"]
 
 PathArray = npt.NDArray[np.float64]
 
@@ -145,3 +149,55 @@ def expanding_square(
         raise InvalidInputError(msg)
     xy = np.asarray(pts, dtype=np.float64)
     return np.column_stack([xy, np.full(len(xy), float(altitude_m))])
+
+
+def follow_terrain(
+    waypoints_enu_m: npt.ArrayLike,
+    ground_m: Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.ArrayLike],
+    agl_m: float,
+    *,
+    max_leg_m: float = 25.0,
+    sample_m: float = 2.0,
+) -> PathArray:
+    """The same track flown ``agl_m`` above the ground (the waypoints' z are replaced).
+
+    Legs longer than ``max_leg_m`` are split evenly. Each waypoint's z is the highest ground
+    under the legs on either side of it (``ground_m(x, y)``, vectorised, metres above home,
+    sampled every ``sample_m`` or closer) plus ``agl_m``: both ends of every leg are at least
+    ``agl_m`` above the highest ground under it, so the straight line between them is too
+    (up to the sampling).
+
+    Raises:
+        InvalidInputError: bad waypoints or parameters, or the track leaves the terrain model
+            (``ground_m`` is NaN somewhere under it).
+    """
+    wp = waypoint_list(waypoints_enu_m)
+    _check_positive("agl_m", agl_m)
+    _check_positive("max_leg_m", max_leg_m)
+    _check_positive("sample_m", sample_m)
+    xy = [wp[0, :2]]
+    for a, b in zip(wp[:-1, :2], wp[1:, :2], strict=True):
+        pieces = max(1, math.ceil(float(np.linalg.norm(b - a)) / max_leg_m))
+        xy.extend(a + (b - a) * (k / pieces) for k in range(1, pieces + 1))
+    track = np.asarray(xy, dtype=np.float64)
+    leg_top = np.empty(max(len(track) - 1, 0), dtype=np.float64)
+    for i in range(len(leg_top)):
+        a, b = track[i], track[i + 1]
+        n = max(2, math.ceil(float(np.linalg.norm(b - a)) / sample_m) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        pts = a + (b - a) * t
+        ground = np.asarray(ground_m(pts[:, 0], pts[:, 1]), dtype=np.float64).reshape(-1)
+        if not np.isfinite(ground).all():
+            bad = pts[int(np.argmax(~np.isfinite(ground)))]
+            msg = f"the track leaves the terrain model at ({bad[0]:.1f}, {bad[1]:.1f}) m; keep the pattern in the world"
+            raise InvalidInputError(msg)
+        leg_top[i] = float(ground.max())
+    if len(track) == 1:
+        ground = np.asarray(ground_m(track[:, 0], track[:, 1]), dtype=np.float64).reshape(-1)
+        if not np.isfinite(ground).all():
+            msg = f"the waypoint ({track[0, 0]:.1f}, {track[0, 1]:.1f}) m is outside the terrain model"
+            raise InvalidInputError(msg)
+        return np.column_stack([track, ground + agl_m])
+    before = np.concatenate([leg_top[:1], leg_top])
+    after = np.concatenate([leg_top, leg_top[-1:]])
+    return np.column_stack([track, np.maximum(before, after) + agl_m])

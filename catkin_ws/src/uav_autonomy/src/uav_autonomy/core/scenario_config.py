@@ -211,8 +211,12 @@ class SearchSpec:
     area_m: tuple[Point2, ...] = ((-250.0, -450.0), (250.0, -450.0), (250.0, -50.0), (-250.0, -50.0))
     #: Lane spacing of the lawnmower / leg increment of the expanding square.
     track_spacing_m: float = 80.0
-    #: Altitude above home of the scripted baselines.
+    #: Altitude of the scripted baselines, metres above ``scripted_alt_reference``.
     scripted_alt_m: float = 40.0
+    #: ``terrain``: the pattern is flown ``scripted_alt_m`` above the ground under it, planned on the world's
+    #: terrain as a prior DEM (a ground station's terrain-frame survey); ``home``: at one altitude above home
+    #: (it flies into any hill higher than that, which is a collision).
+    scripted_alt_reference: Literal["terrain", "home"] = "terrain"
     #: Hold (stop and stare) distance from the person once confirmed.
     hold_alt_m: float = 25.0
 

@@ -15,8 +15,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
+from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower
 from uav_autonomy.core.scenario_config import FEATURE_NAMES, DepthSource, MissionKind, Scenario, Strategy, TimeMode
 from uav_autonomy.core.scenario_errors import ScenarioError
+from uav_autonomy.errors import InvalidInputError
+
+#: Terrain height above home at (x, y), vectorised (e.g. the world's ``height_at``).
+GroundModel = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.ArrayLike]
 
 __all__ = ["NODE_PARAMS", "RunContext", "deep_merge", "node_params", "scripted_request"]
 
@@ -33,6 +41,8 @@ class RunContext:
         lockstep_role: the bridge's role in lockstep runs (``master`` or ``participant``).
         map_server_base: the map server's configuration file contents (``config/map_server.yaml``).
         cameras: the bridge's cameras for this run: name -> ``{pitch_deg, hfov_deg}``.
+        scripted: a scripted baseline's controller request planned over the world's terrain
+            (:func:`scripted_request`); None when not needed.
     """
 
     run_dir: str = ""
@@ -42,6 +52,7 @@ class RunContext:
     lockstep_role: str = "master"
     map_server_base: Mapping[str, Any] = field(default_factory=dict)
     cameras: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    scripted: Mapping[str, Any] | None = None
 
 
 def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
@@ -134,7 +145,12 @@ def lockstep_steps(scenario: Scenario) -> int:
 
 
 def mission_manager(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
-    return {"person": dict(ctx.person or {})}
+    out: dict[str, Any] = {"person": dict(ctx.person or {})}
+    if ctx.scripted is not None:
+        req = dict(ctx.scripted)
+        req["points"] = [[float(v) for v in p] for p in req["points"]]
+        out["scripted"] = req
+    return out
 
 
 def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
@@ -190,14 +206,29 @@ def needs_person(scenario: Scenario) -> bool:
     return scenario.mission is MissionKind.SEARCH_AND_RESCUE and scenario.search is not None
 
 
-def scripted_request(scenario: Scenario) -> dict[str, Any]:
+def needs_terrain(scenario: Scenario) -> bool:
+    """A scripted baseline flown above the terrain: its pattern is planned over the world's terrain."""
+    search = scenario.search
+    scripted = scenario.strategy is not Strategy.AUTONOMOUS
+    return scripted and search is not None and search.scripted_alt_reference == "terrain"
+
+
+def scripted_request(scenario: Scenario, ground_m: GroundModel | None = None) -> dict[str, Any]:
     """The controller's SCRIPTED request (``uav_msgs/SetControllerState`` fields) for a baseline.
 
     Lawnmower: the search area polygon at ``track_spacing_m``. Expanding square: from the
-    search target (the prior datum) out to the farthest corner of the search area.
+    search target (the prior datum) out to the farthest corner of the search area. With
+    ``scripted_alt_reference: terrain`` the pattern is expanded here into explicit waypoints
+    ``scripted_alt_m`` above ``ground_m`` (the world's terrain as a prior DEM; pattern
+    ``waypoints``); with ``home`` the controller builds it at ``scripted_alt_m`` above home.
+
+    Args:
+        scenario: a scripted baseline.
+        ground_m: terrain height above home at ``(x, y)`` (vectorised); needed for ``terrain``.
 
     Raises:
-        ScenarioError: the scenario is autonomous or has no search section.
+        ScenarioError: the scenario is autonomous or has no search section, the terrain model is
+            missing, or the pattern cannot be built over it.
     """
     search = scenario.search
     if scenario.strategy is Strategy.AUTONOMOUS or search is None:
@@ -210,7 +241,7 @@ def scripted_request(scenario: Scenario) -> dict[str, Any]:
         datum = _target_xy(scenario)[0]
         points = [(datum[0], datum[1], 0.0)]
         radius = max(((x - datum[0]) ** 2 + (y - datum[1]) ** 2) ** 0.5 for x, y in search.area_m)
-    return {
+    request = {
         "state": "SCRIPTED",
         "pattern": scenario.strategy.value,
         "points": points,
@@ -218,6 +249,26 @@ def scripted_request(scenario: Scenario) -> dict[str, Any]:
         "altitude_m": search.scripted_alt_m,
         "max_radius_m": radius,
     }
+    if search.scripted_alt_reference == "home":
+        return request
+    if ground_m is None:
+        msg = (
+            f"scenario {scenario.name}: search.scripted_alt_reference is terrain, which needs the world's terrain "
+            "to plan the pattern over (or set it to home)"
+        )
+        raise ScenarioError(msg)
+    try:
+        if scenario.strategy is Strategy.LAWNMOWER:
+            track = lawnmower([(x, y) for x, y, _ in points], search.track_spacing_m, 1.0)
+        else:
+            track = expanding_square(points[0][:2], search.track_spacing_m, 1.0, max_radius_m=radius)
+        flown = follow_terrain(track, ground_m, search.scripted_alt_m)
+    except InvalidInputError as err:
+        msg = f"scenario {scenario.name}: cannot plan the {scenario.strategy.value} over the terrain: {err}"
+        raise ScenarioError(msg) from err
+    request["pattern"] = "waypoints"
+    request["points"] = [(float(x), float(y), float(z)) for x, y, z in flown]
+    return request
 
 
 def sitl_capacity_mah(scenario: Scenario, sitl_config: Path) -> float:

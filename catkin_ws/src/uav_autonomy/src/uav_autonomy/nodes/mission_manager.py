@@ -55,7 +55,8 @@ from uav_autonomy.core.scenario_mission import (
     flying_phase,
     resume_needed,
 )
-from uav_autonomy.core.scenario_params import scripted_request
+from uav_autonomy.core.scenario_params import needs_terrain, scripted_request
+from uav_autonomy.core.scenario_world import load_world
 from uav_autonomy.core.scoring_convert import detections_from_msg
 from uav_autonomy.ros.scoring_msgs import status_msg
 from uav_common.config import ConfigError
@@ -77,8 +78,10 @@ class MissionManager:
         linger_s: float,
         max_linger_s: float = 30.0,
         person_instance_id: int = 0,
+        scripted: dict[str, Any] | None = None,
     ) -> None:
         self.scenario = scenario
+        self.scripted = scripted  # the baseline's request planned at launch (over the terrain), if any
         self.controller_ns = controller_ns.rstrip("/")
         self.shutdown_on_stop = shutdown_on_stop
         self.linger_s = linger_s
@@ -186,7 +189,11 @@ class MissionManager:
         if self.scenario.strategy is Strategy.AUTONOMOUS:
             req = SetControllerStateRequest(state=controller_state_for(self.scenario))
         else:
-            spec = scripted_request(self.scenario)
+            try:
+                spec = self.scripted or scripted_request(self.scenario)
+            except ScenarioError as err:
+                rospy.logerr_throttle(10.0, f"mission_manager: no scripted pattern: {err}")
+                return
             req = SetControllerStateRequest(
                 state=spec["state"],
                 pattern=spec["pattern"],
@@ -350,6 +357,14 @@ def main() -> None:
         rospy.logfatal(f"mission_manager: {problem}")
         sys.exit(2)
     person = rospy.get_param("~run/person", {}) or {}
+    scripted = rospy.get_param("~run/scripted", None) or None
+    if scripted is None and needs_terrain(scenario):
+        # Started without the launch files' run settings: plan the baseline over the world's terrain here.
+        try:
+            scripted = scripted_request(scenario, load_world(scenario).height_at)
+        except (ScenarioError, ConfigError) as err:  # WorldDataError is a ScenarioError
+            rospy.logfatal(f"mission_manager: {err}")
+            sys.exit(2)
     node = MissionManager(
         scenario,
         str(rospy.get_param("~controller", "/waypoint_controller")),
@@ -357,6 +372,7 @@ def main() -> None:
         linger_s=float(rospy.get_param("~linger_s", 1.0)),
         max_linger_s=float(rospy.get_param("~max_linger_s", 30.0)),
         person_instance_id=int(person.get("instance_id", 0)),
+        scripted=scripted,
     )
     node.wait_for_recorder = bool(rospy.get_param("~wait_for_recorder", False))
     node.start()

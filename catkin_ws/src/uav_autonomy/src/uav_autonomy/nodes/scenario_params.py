@@ -28,6 +28,7 @@ from uav_autonomy.core.scenario_params import (
     RunContext,
     bridge_cameras,
     needs_person,
+    needs_terrain,
     node_params,
     scripted_request,
     sitl_capacity_mah,
@@ -43,10 +44,15 @@ def run_context(
 ) -> RunContext:
     """The world-dependent part of a node's settings (loads the world only when needed)."""
     person: dict[str, Any] | None = None
+    scripted: dict[str, Any] | None = None
+    world = None
     if needs_person(scenario) and node in ("sim_bridge", "mission_manager", "scorer"):
         assert scenario.search is not None
-        placement = place_person(scenario.search.person, load_world(scenario, cache_dir))
-        person = placement.as_dict()
+        world = load_world(scenario, cache_dir)
+        person = place_person(scenario.search.person, world).as_dict()
+    if needs_terrain(scenario) and node == "mission_manager":
+        world = world or load_world(scenario, cache_dir)
+        scripted = scripted_request(scenario, world.height_at)
     world_yaml = ""
     if node == "sim_bridge":
         world_yaml = str(derived_world_yaml(scenario, (cache_dir or DEFAULT_CACHE_DIR).parent / "scenario_worlds"))
@@ -65,6 +71,7 @@ def run_context(
         person=person,
         battery_capacity_mah=capacity,
         lockstep_role=lockstep_role,
+        scripted=scripted,
     )
 
 
@@ -84,7 +91,9 @@ def main() -> None:
         elif args.node == "settle":
             data = bool(scenario.time.deterministic)
         elif args.node == "scripted":
-            data = to_mapping(scripted_request(scenario))
+            cache = Path(args.world_cache_dir).expanduser() if args.world_cache_dir else None
+            ground = load_world(scenario, cache).height_at if needs_terrain(scenario) else None
+            data = to_mapping(scripted_request(scenario, ground))
         else:
             cache = Path(args.world_cache_dir).expanduser() if args.world_cache_dir else None
             ctx = run_context(
