@@ -21,6 +21,12 @@ Parameters:
 MAVLink: connects with ``connection_url`` (pymavlink syntax), sysid/compid 1/191,
 heartbeat 1 Hz as an onboard controller, position setpoints from a ROS-time timer
 at ``setpoint_rate_hz``. The decision logic is :class:`uav_autonomy.core.controller.WaypointController`.
+
+One step per ROS time: when simulated time advances in lockstep steps longer than the timer period
+(0.1 s steps, 20 Hz timer), rospy fires the timer several times back to back at the same time; only
+the first steps the controller. Otherwise whether the autopilot's answer to a command sent by the
+first callback (e.g. the OFFBOARD confirmation) arrived before the second one would depend on
+process scheduling, and two lockstep runs could diverge by a step.
 """
 
 from __future__ import annotations
@@ -101,6 +107,7 @@ class WaypointControllerNode:
         self._last_odom_pub_s = -math.inf
         self._last_odom_stamp_s: float | None = None
         self._last_status: ControllerStatus | None = None
+        self._last_step_s: float | None = None
 
     def start(self) -> None:
         self.link.open(rospy.get_time())
@@ -118,6 +125,9 @@ class WaypointControllerNode:
     # -------------------------------------------------------------- callbacks
     def on_timer(self, _event: object) -> None:
         now = rospy.get_time()
+        if now == self._last_step_s:  # a catch-up callback at the same simulated time (see module docstring)
+            return
+        self._last_step_s = now
         with self._lock:
             self.link.poll(now)
             telemetry = self.link.telemetry()
