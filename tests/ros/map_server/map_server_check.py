@@ -24,9 +24,9 @@ sys.path[:0] = [str(HERE.parents[1])]
 import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
-import tf2_ros  # noqa: E402
-from geometry_msgs.msg import Point, TransformStamped  # noqa: E402
+from geometry_msgs.msg import Point  # noqa: E402
 from helpers.sim_clock import SimClock  # noqa: E402
+from helpers.static_tf import nadir_camera_tf  # noqa: E402
 from nav_msgs.msg import OccupancyGrid  # noqa: E402
 from octomap_msgs.msg import Octomap  # noqa: E402
 from octomap_msgs.srv import BoundingBoxQuery, GetOctomap  # noqa: E402
@@ -98,14 +98,7 @@ class MapServerCheck(unittest.TestCase):
         cls.backend = rospy.get_param("~backend")
         cls.tmp = Path(tempfile.mkdtemp(prefix="map_server_check_"))
         cls.clock = SimClock(SIM_START_S)  # simulation time from SIM_START_S, 50 Hz
-        cls.tf_static = tf2_ros.StaticTransformBroadcaster()
-        t = TransformStamped()
-        t.header.stamp = rospy.Time.from_sec(SIM_START_S)
-        t.header.frame_id = "map"
-        t.child_frame_id = FRAME
-        t.transform.translation.z = CAM_Z
-        t.transform.rotation.x = 1.0  # 180 deg about x: optical z down, y south
-        cls.tf_static.sendTransform(t)
+        cls.tf_static = nadir_camera_tf(FRAME, CAM_Z, SIM_START_S)
         cls.stats: list[MapInsertStats] = []
         cls.layers: list[GridLayers] = []
         rospy.Subscriber("/map_server/insert_stats", MapInsertStats, cls.stats.append, queue_size=100)

@@ -20,9 +20,8 @@ sys.path[:0] = [str(HERE.parents[1])]
 import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
-import tf2_ros  # noqa: E402
-from geometry_msgs.msg import TransformStamped  # noqa: E402
 from helpers.sim_clock import SimClock  # noqa: E402
+from helpers.static_tf import nadir_camera_tf  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
 from uav_common.pointcloud import unpack_xyzrgb  # noqa: E402
@@ -80,14 +79,7 @@ class MapServerRgbdCheck(unittest.TestCase):
     def setUpClass(cls) -> None:
         rospy.init_node("map_server_rgbd_check")
         cls.clock = SimClock(SIM_START_S)  # simulation time from SIM_START_S, 50 Hz
-        cls.tf_static = tf2_ros.StaticTransformBroadcaster()
-        t = TransformStamped()
-        t.header.stamp = rospy.Time.from_sec(SIM_START_S)
-        t.header.frame_id = "map"
-        t.child_frame_id = FRAME
-        t.transform.translation.z = CAM_Z
-        t.transform.rotation.x = 1.0  # 180 deg about x: optical z down, y south
-        cls.tf_static.sendTransform(t)
+        cls.tf_static = nadir_camera_tf(FRAME, CAM_Z, SIM_START_S)
         cls.stats: list[MapInsertStats] = []
         rospy.Subscriber("/map_server/insert_stats", MapInsertStats, cls.stats.append, queue_size=100)
         cls.pub_depth = rospy.Publisher("/test/depth", Image, queue_size=10)
