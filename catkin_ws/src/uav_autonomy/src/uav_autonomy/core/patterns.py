@@ -180,12 +180,12 @@ def follow_terrain(
         pieces = max(1, math.ceil(float(np.linalg.norm(b - a)) / max_leg_m))
         xy.extend(a + (b - a) * (k / pieces) for k in range(1, pieces + 1))
     track = np.asarray(xy, dtype=np.float64)
-    leg_top = np.empty(max(len(track) - 1, 0), dtype=np.float64)
-    for i in range(len(leg_top)):
-        a, b = track[i], track[i + 1]
+    # the ground under each leg (a lone waypoint: under the point itself)
+    legs = [(track[i], track[i + 1]) for i in range(len(track) - 1)] or [(track[0], track[0])]
+    leg_top = np.empty(len(legs), dtype=np.float64)
+    for i, (a, b) in enumerate(legs):
         n = max(2, math.ceil(float(np.linalg.norm(b - a)) / sample_m) + 1)
-        t = np.linspace(0.0, 1.0, n)[:, None]
-        pts = a + (b - a) * t
+        pts = a + (b - a) * np.linspace(0.0, 1.0, n)[:, None]
         ground = np.asarray(ground_m(pts[:, 0], pts[:, 1]), dtype=np.float64).reshape(-1)
         if not np.isfinite(ground).all():
             bad = pts[int(np.argmax(~np.isfinite(ground)))]
@@ -193,11 +193,7 @@ def follow_terrain(
             raise InvalidInputError(msg)
         leg_top[i] = float(ground.max())
     if len(track) == 1:
-        ground = np.asarray(ground_m(track[:, 0], track[:, 1]), dtype=np.float64).reshape(-1)
-        if not np.isfinite(ground).all():
-            msg = f"the waypoint ({track[0, 0]:.1f}, {track[0, 1]:.1f}) m is outside the terrain model"
-            raise InvalidInputError(msg)
-        return np.column_stack([track, ground + agl_m])
+        return np.column_stack([track, leg_top + agl_m])
     before = np.concatenate([leg_top[:1], leg_top])
     after = np.concatenate([leg_top, leg_top[-1:]])
     return np.column_stack([track, np.maximum(before, after) + agl_m])
