@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from pathlib import Path
@@ -88,6 +89,27 @@ def test_segmentation_ids_and_depth_match_the_object_list(
                     & (local[:, 2] <= sz + 0.1)
                 )
             assert inside.mean() > 0.995, (obj.name, inside.mean())
+
+
+@pytest.mark.parametrize(("xy", "yaw"), POSES)
+def test_the_instance_only_pass_gives_the_full_renders_ids(
+    default_world: World, default_renderer: Renderer, xy: tuple[float, float], yaw: float
+) -> None:
+    """Detections use the cheaper instance-only pass: the same ids, 0 for the sky and beyond its far plane."""
+    z = float(default_world.height_at(*xy)) + 40.0
+    base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
+    for cam in (NADIR, FORWARD):
+        pose = cam.optical_pose(base)
+        full = default_renderer.render(cam, pose)
+        ids = default_renderer.render_instances(cam, pose)
+        assert ids.dtype == np.uint16
+        assert np.array_equal(ids, full.instance_id)
+        assert (ids == 0).any() == (cam is FORWARD)  # the forward camera sees the sky
+        short = dataclasses.replace(cam, far_m=80.0)
+        near_ids = default_renderer.render_instances(short, pose)
+        far = ~(full.depth_m <= 75.0)  # beyond the far plane (or sky): nothing, i.e. 0
+        assert (near_ids[far & (full.depth_m > 85.0)] == 0).all()
+        assert (near_ids[full.depth_m < 75.0] == full.instance_id[full.depth_m < 75.0]).all()
 
 
 def test_people_appear_where_the_camera_model_projects_them(default_world: World, default_renderer: Renderer) -> None:

@@ -154,8 +154,6 @@ class Renderer:
         tri = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], dtype="f4").tobytes())
         self.sky_vao = ctx.vertex_array(self.sky, [(tri, "2f", "in_xy")])
         self.iprog: Any = ctx.program(vertex_shader=shaders.INSTANCE_VS, fragment_shader=shaders.INSTANCE_FS)
-        self.background: Any = ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=shaders.BACKGROUND_FS)
-        self.background_vao = ctx.vertex_array(self.background, [(tri, "2f", "in_xy")])
 
     def _vertex_bytes(self, verts: npt.NDArray[np.float32], normals: npt.NDArray[np.float32],
                       colors: npt.NDArray[np.float32], inst: npt.NDArray[np.uint32]) -> bytes:  # fmt: skip
@@ -288,8 +286,11 @@ class Renderer:
         return self._targets[key]
 
     def visible_tiles(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.bool_]:
-        """Tiles whose bounding box intersects the view frustum (and lies within ``far_m``)."""
-        planes = camera.frustum_planes_optical()
+        """Tiles whose bounding box intersects the view frustum, far plane (z-depth ``far_m``) included."""
+        # The far plane is a plane, not a sphere: a tile farther than far_m from the eye can still hold points
+        # whose z-depth is within it (off the optical axis), and they are drawn.
+        far_plane = np.array([[0.0, 0.0, -1.0, camera.far_m]])
+        planes = np.concatenate([camera.frustum_planes_optical(), far_plane])
         rot = t_map_optical.rotation
         eye = t_map_optical.translation_m
         normals_w = planes[:, :3] @ rot.T
@@ -297,9 +298,7 @@ class Renderer:
         # the most-inside corner of each box must be on the inner side of every plane
         dist = self._tile_center @ normals_w.T + d_w + self._tile_extent @ np.abs(normals_w).T
         inside = np.all(dist >= 0.0, axis=1)
-        gap = np.maximum(np.abs(self._tile_center - eye) - self._tile_extent, 0.0)
-        near_enough = np.linalg.norm(gap, axis=1) <= camera.far_m
-        return np.asarray(inside & near_enough & self._tile_nonempty, dtype=np.bool_)
+        return np.asarray(inside & self._tile_nonempty, dtype=np.bool_)
 
     def _draw_commands(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint32]:
         if self.settings.frustum_culling:
@@ -397,10 +396,9 @@ class Renderer:
         self._check_thread()
         with self.ctx:
             target = self._setup_camera(camera, t_map_optical, shaded=False)
+            # Where nothing is drawn the id stays the clear value, 0: Mesa clears an integer attachment with the
+            # bit pattern of the float clear colour, and 0.0f is 0 (a full-screen pass did the same, ~1 ms more).
             self._draw_scene(camera, t_map_optical, shaded=False)
-            self.ctx.depth_func = "<="
-            self.ctx.disable(self._mgl.CULL_FACE)
-            self.background_vao.render(self._mgl.TRIANGLES)  # defined ids (0) where nothing was drawn
             target.fbo_inst.read_into(target.buf_inst, attachment=0, components=1, dtype="u4", alignment=1)
             return target.buf_inst[::-1].astype(np.uint16)
 

@@ -1,8 +1,8 @@
 """GLSL 3.30 shaders of the renderer: one multi-render-target pass and a sky pass.
 
 Outputs (``location``): 0 RGBA8 color, 1 R32F z-depth in metres, 2 R32UI instance id.
-The instance-only pass (``INSTANCE_*``, ``BACKGROUND_FS``) writes just the R32UI ids at
-location 0: ground-truth detections need nothing else, and shading is what costs.
+The instance-only pass (``INSTANCE_*``) writes just the R32UI ids at location 0:
+ground-truth detections need nothing else, and shading is what costs.
 The color is the vertex base color times a world-space value-noise texture (three
 octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
 term, with a little distance haze.  Around home the terrain gets a concrete landing
@@ -153,8 +153,3 @@ layout(location = 0) out uint f_inst;
 void main() { f_inst = v_inst; }
 """
 
-BACKGROUND_FS = """
-#version 330
-layout(location = 0) out uint f_inst;
-void main() { f_inst = 0u; }
-"""
