@@ -133,6 +133,9 @@ struct ByteMap {
   int n[3] = {0, 0, 0};   // cells per axis (multiples of 8)
   std::size_t stride[3] = {1, 0, 0};
   std::vector<uint8_t> cells;  // zero between frames
+  /// Per 8^3 brick: 1 if it may hold set cells. Empty: scan() reads every brick. Truncated rays end at their hit,
+  /// so only the bricks near the hits can be touched (restrictToHits).
+  std::vector<uint8_t> brick_flags;
 
   static std::size_t bytesFor(const KeyBox& box) {
     std::size_t bytes = 1;
@@ -150,6 +153,36 @@ struct ByteMap {
     stride[2] = static_cast<std::size_t>(n[0]) * n[1];
     const std::size_t need = stride[2] * n[2];
     if (cells.size() < need) cells.assign(need, 0);  // stays zero: scan() clears what it reads
+    brick_flags.clear();
+  }
+
+  /// Limits the next scan() to the bricks within `radius` bricks (per axis) of a brick holding one of `keys`.
+  /// Every cell set before that scan must lie in one of them, or it is never cleared.
+  void restrictToHits(const std::vector<Key>& keys, int radius) {
+    const int nb[3] = {n[0] / 8, n[1] / 8, n[2] / 8};
+    const std::size_t sy = static_cast<std::size_t>(nb[0]);
+    const std::size_t sz = sy * static_cast<std::size_t>(nb[1]);
+    brick_flags.assign(sz * static_cast<std::size_t>(nb[2]), 0);
+    for (const Key& k : keys) {
+      if (!inside(k)) continue;
+      brick_flags[static_cast<std::size_t>((k[0] - k0[0]) >> 3) + static_cast<std::size_t>((k[1] - k0[1]) >> 3) * sy +
+                  static_cast<std::size_t>((k[2] - k0[2]) >> 3) * sz] = 1;
+    }
+    // Separable dilation: `radius` passes along each axis.
+    const std::size_t strides[3] = {1, sy, sz};
+    std::vector<uint8_t> prev;
+    for (int axis = 0; axis < 3; ++axis) {
+      for (int pass = 0; pass < radius; ++pass) {
+        prev = brick_flags;
+        const std::size_t st = strides[axis];
+        for (std::size_t i = 0; i < prev.size(); ++i) {
+          if (prev[i] == 0) continue;
+          const int c = static_cast<int>((i / st) % static_cast<std::size_t>(nb[axis]));
+          if (c > 0) brick_flags[i - st] = 1;
+          if (c + 1 < nb[axis]) brick_flags[i + st] = 1;
+        }
+      }
+    }
   }
 
   bool inside(const Key& k) const {
@@ -177,9 +210,12 @@ struct ByteMap {
     unsigned spread[8];
     for (unsigned i = 0; i < 8; ++i) spread[i] = static_cast<unsigned>(spreadBits3(i));
     const int nb[3] = {n[0] / 8, n[1] / 8, n[2] / 8};
+    const uint8_t* flags = brick_flags.empty() ? nullptr : brick_flags.data();
+    std::size_t brick = 0;
     for (int bz = 0; bz < nb[2]; ++bz) {
       for (int by = 0; by < nb[1]; ++by) {
-        for (int bx = 0; bx < nb[0]; ++bx) {
+        for (int bx = 0; bx < nb[0]; ++bx, ++brick) {
+          if (flags != nullptr && flags[brick] == 0) continue;
           const std::size_t base = static_cast<std::size_t>(bx) * 8 + static_cast<std::size_t>(by) * 8 * stride[1] +
                                    static_cast<std::size_t>(bz) * 8 * stride[2];
           BrickRef br{};
@@ -312,6 +348,7 @@ struct FrameUpdateBuilder::Impl {
   std::vector<MortonItem> hits;
   std::vector<MortonItem> sort_scratch;
   std::vector<uint64_t> free_keys;
+  std::vector<Key> hit_keys;
   ByteMap byte_map;
 };
 
@@ -465,6 +502,17 @@ void FrameUpdateBuilder::build(const ColoredPoints& points, const Point3& origin
     out.used_byte_map = dense;
     if (dense) s.byte_map.setBox(padded);
     ByteMap& bm = s.byte_map;
+    if (dense && options.mode == InsertMode::kTruncated) {
+      // A truncated ray's keys lie within ceil(truncation / res) + 1 keys of its end (its hit) per axis, and the
+      // DDA may step one key past: within `margin` keys, i.e. `radius` bricks of the hit's brick.
+      const double margin = std::ceil(options.truncation_m / grid_.resolution()) + 2.0;
+      const int radius = static_cast<int>(std::ceil(margin / 8.0));
+      if (radius <= 2) {
+        s.hit_keys.clear();
+        for (const VoxelUpdate& h : hit_updates) s.hit_keys.push_back(keyOfMorton(h.morton));
+        bm.restrictToHits(s.hit_keys, radius);
+      }
+    }
     arena.execute([&] {
       tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
         std::vector<uint64_t>& local = spill.local();

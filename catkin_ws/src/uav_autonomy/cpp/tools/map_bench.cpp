@@ -300,6 +300,7 @@ int runPipeline(const std::map<std::string, std::string>& a) {
   cfg.filter.voxel_leaf_m = std::stod(arg(a, "leaf", "0"));
   cfg.filter.voxel_impl = voxelFilterImplFromString(arg(a, "voxel", "fast"));
   cfg.threads = threads;
+  cfg.max_range_m = std::stod(arg(a, "max-range", "-1"));
   Mapper mapper(cfg);
   // Sensor-frame clouds and their poses: rendered frames (map-frame points shifted to the sensor origin, a
   // pure translation) or the synthetic camera.
@@ -321,13 +322,16 @@ int runPipeline(const std::map<std::string, std::string>& a) {
       inputs.emplace_back(synthetic::render(world, cam, pose, threads), pose);
     }
   }
-  std::vector<double> total, filter, insert;
+  std::vector<double> total, filter, insert, raycast, update, layers;
   std::size_t pts_in = 0, pts_out = 0;
   for (std::size_t i = 0; i < inputs.size(); ++i) {
     const InsertStats st = mapper.insert(inputs[i].first, inputs[i].second, 10.0 + 0.5 * static_cast<double>(i));
     total.push_back(st.total_ms);
     filter.push_back(st.filter_ms);
     insert.push_back(st.total_ms - st.filter_ms);
+    raycast.push_back(st.raycast_ms);
+    update.push_back(st.update_ms);
+    layers.push_back(st.layers_ms);
     pts_in += st.filter.points_in;
     pts_out += st.points_inserted;
   }
@@ -336,7 +340,9 @@ int runPipeline(const std::map<std::string, std::string>& a) {
             << arg(a, "mode", "surface") << "\", \"voxel\": \"" << toString(cfg.filter.voxel_impl)
             << "\", \"res_m\": " << res << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
             << ", \"median_total_ms\": " << median(total) << ", \"median_filter_ms\": " << median(filter)
-            << ", \"median_insert_ms\": " << median(insert) << ", \"points_in_per_frame\": " << pts_in / n
+            << ", \"median_insert_ms\": " << median(insert) << ", \"median_raycast_ms\": " << median(raycast)
+            << ", \"median_update_ms\": " << median(update) << ", \"median_layers_ms\": " << median(layers)
+            << ", \"points_in_per_frame\": " << pts_in / n
             << ", \"points_inserted_per_frame\": " << pts_out / n << "}" << std::endl;
   return 0;
 }

@@ -230,7 +230,7 @@ void octomapSets(const ColoredPoints& pts, const Point3& origin, double res, dou
 
 TEST(full_rays_equal_octomap_key_sets) {
   const SmallFrames f = smallFrames(1);
-  for (double res : {0.2, 0.5}) {
+  for (double res : {0.1, 0.2, 0.5}) {
     for (double max_range : {-1.0, 15.0}) {
       for (int threads : {1, 2}) {
         for (std::size_t byte_map : {std::size_t(512) << 20, std::size_t(0)}) {  // dense and sort fallback paths
@@ -314,6 +314,55 @@ TEST(full_rays_match_stock_insert_point_cloud) {
     CHECK(voxels(m.map()).size() == stock_voxels);
     CHECK(occupied > 100 && stock_voxels > 10 * occupied / 2);
     CHECK_MSG(at_max > 10 && at_min > 10, at_max << " voxels at the maximum, " << at_min << " at the minimum");
+  }
+}
+
+TEST(truncated_rays_equal_octomap_key_sets) {
+  // Truncated rays (the last `truncation` metres before each hit, OctoMap's own computeRayKeys) through one builder
+  // frame after frame: the scan limited to bricks near the hits must find every free key and leave no cell set
+  // behind for the next frame (a leftover would show up there as an extra free key).
+  const SmallFrames f = smallFrames(4);
+  for (double res : {0.1, 0.2, 0.5}) {
+    for (double trunc : {0.3, 1.0, 2.0, 3.0}) {  // 0.1 m / 3 m: too far for the brick limit (every brick is read)
+      for (double max_range : {-1.0, 23.0}) {
+        FrameUpdateBuilder builder(res);
+        octomap::OcTree tree(res);
+        octomap::KeyRay ray;
+        for (std::size_t i = 0; i < f.map_points.size(); ++i) {
+          const Point3 origin = f.poses[i].origin();
+          std::set<uint64_t> ref_free;
+          std::set<uint64_t> ref_occ;
+          for (const Point3& p : f.map_points[i].xyz) {
+            const Point3 d = p - origin;
+            const double dist = d.norm();
+            if (max_range >= 0.0 && dist > max_range) continue;
+            Point3 start = origin;
+            const auto trunc_f = static_cast<float>(trunc);  // the builder's arithmetic
+            if (dist > trunc_f) start = p - d * static_cast<float>(trunc_f / dist);
+            if (tree.computeRayKeys(start, p, ray))
+              for (const auto& k : ray) ref_free.insert(mortonOf(k));
+            octomap::OcTreeKey k;
+            if (tree.coordToKeyChecked(p, k)) ref_occ.insert(mortonOf(k));
+          }
+          for (uint64_t m : ref_occ) ref_free.erase(m);
+          RayOptions ro;
+          ro.mode = InsertMode::kTruncated;
+          ro.truncation_m = trunc;
+          ro.max_range_m = max_range;
+          ro.threads = 2;
+          FrameUpdate fu;
+          builder.build(f.map_points[i], origin, ro, fu);
+          CHECK(fu.used_byte_map);
+          std::set<uint64_t> free_set;
+          std::set<uint64_t> occ_set;
+          for (const VoxelUpdate& u : fu.updates) (u.hit ? occ_set : free_set).insert(u.morton);
+          CHECK_MSG(occ_set == ref_occ, "res " << res << " trunc " << trunc << " frame " << i << ": occupied sets differ");
+          CHECK_MSG(free_set == ref_free, "res " << res << " trunc " << trunc << " frame " << i << ": free sets differ, "
+                                                << free_set.size() << " vs " << ref_free.size());
+          CHECK(!free_set.empty());
+        }
+      }
+    }
   }
 }
 
