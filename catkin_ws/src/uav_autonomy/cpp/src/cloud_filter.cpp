@@ -5,6 +5,7 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -136,13 +137,18 @@ bool columnVoxelGrid(ColoredPoints& points, double leaf_m, const int32_t min_b[3
   for (uint32_t col : leaf_column) head[col] = kNoLeaf;
   ColoredPoints& out = tl_out;
   out.clear();
-  out.xyz.reserve(leaves.size());
-  if (color) out.rgb.reserve(leaves.size());
-  for (const LeafSum& l : leaves) {
+  out.xyz.resize(leaves.size());
+  if (color) out.rgb.resize(leaves.size());
+  for (std::size_t j = 0; j < leaves.size(); ++j) {
+    const LeafSum& l = leaves[j];
     const auto fc = static_cast<float>(l.count);
-    out.xyz.emplace_back(l.sx / fc, l.sy / fc, l.sz / fc);
-    if (color)
-      out.rgb.push_back({static_cast<uint8_t>(l.sr / fc), static_cast<uint8_t>(l.sg / fc), static_cast<uint8_t>(l.sb / fc)});
+    out.xyz[j] = Point3(l.sx / fc, l.sy / fc, l.sz / fc);
+    if (color) {
+      std::array<uint8_t, 3>& c = out.rgb[j];  // written in place (a temporary array stalled on store forwarding)
+      c[0] = static_cast<uint8_t>(l.sr / fc);
+      c[1] = static_cast<uint8_t>(l.sg / fc);
+      c[2] = static_cast<uint8_t>(l.sb / fc);
+    }
   }
   std::swap(points, out);
   return true;

@@ -5,7 +5,7 @@
 //   map_core_tests --all           run every test
 //   map_core_tests --write-sample DIR   write sample outputs for the Python readers' tests
 //
-// tests/unit/map_server/test_map_core.py runs each test as its own pytest case.
+// tests/unit/map_server/test_map_core_cpp.py runs each test as its own pytest case.
 #include "synthetic_world.h"
 
 #include <uav_mapping/column_layers.h>

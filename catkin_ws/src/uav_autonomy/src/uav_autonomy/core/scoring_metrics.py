@@ -64,7 +64,7 @@ def voxel_keys_from_indices(ijk: npt.ArrayLike) -> IntArray:
         msg = f"voxel index out of range ±{_OFFSET}: min {idx.min()}, max {idx.max()}"
         raise ScoringError(msg)
     keys = (shifted[:, 0] << (2 * KEY_BITS)) | (shifted[:, 1] << KEY_BITS) | shifted[:, 2]
-    return np.asarray(np.unique(keys), dtype=np.int64)
+    return _sorted_unique(keys)  # the map server's export is already sorted and unique: no sort then
 
 
 def voxel_keys(points_m: npt.ArrayLike, resolution_m: float) -> IntArray:
@@ -127,7 +127,8 @@ def voxel_accuracy(map_keys: IntArray, truth_keys: IntArray) -> VoxelAccuracy:
     union = e.size + g.size - common
     seen = 0
     if e.size and g.size:
-        cols = np.unique(key_columns(e))
+        c = key_columns(e)  # sorted, since e is
+        cols = c[np.concatenate(([True], c[1:] != c[:-1]))]
         g_cols = key_columns(g)  # sorted, since g is
         seen = int(np.sum(np.searchsorted(g_cols, cols, side="right") - np.searchsorted(g_cols, cols, side="left")))
     union_seen = e.size + seen - common
