@@ -28,7 +28,11 @@ def _detect(renderer: Renderer, cam: CameraModel, pose: RigidTransform, objs: di
     frame = renderer.render(cam, pose)
     cands = visible_candidates(frame.instance_id, pose, objs, CFG)
     alone = renderer.unoccluded_pixel_counts(cam, pose, cands)
-    return ground_truth_detections(frame.instance_id, pose, objs, CFG, alone), frame
+    dets = ground_truth_detections(frame.instance_id, pose, {i: objs[i] for i in cands}, CFG, alone)
+    # The candidates are exactly the detected objects, so the bridge computes detections for them only.
+    assert dets == ground_truth_detections(frame.instance_id, pose, objs, CFG, alone)
+    assert [d.instance_id for d in dets] == cands
+    return dets, frame
 
 
 def test_person_walks_through_the_frame(scene: tuple[World, Renderer]) -> None:

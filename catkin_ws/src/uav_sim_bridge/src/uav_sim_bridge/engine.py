@@ -189,8 +189,11 @@ class BridgeEngine:
             dets = None
             if name in det_cams:
                 cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
-                alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands) if cands else {}
-                dets = ground_truth_detections(instance_id, t_opt, self._objects, cfg.detections, alone)
+                dets = []  # most frames: nobody in view, and the per-pixel work below is skipped
+                if cands:
+                    alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands)
+                    objs = {iid: self._objects[iid] for iid in cands}
+                    dets = ground_truth_detections(instance_id, t_opt, objs, cfg.detections, alone)
             outputs.append(CameraOutput(cam, t_opt, frame, depth, dets))
         contacts = self.collisions.check(self._previous_position, state.position_m)
         self._previous_position = state.position_m.copy()

@@ -67,20 +67,21 @@ def visible_candidates(
     objects: Mapping[int, WorldObject] | Iterable[WorldObject],
     cfg: DetectionConfig,
 ) -> list[int]:
-    """Ids of the objects of ``cfg.classes`` with at least ``min_pixels`` visible pixels and within range."""
+    """Ids of the objects of ``cfg.classes`` with at least ``min_pixels`` visible pixels and within range.
+
+    Exactly the objects :func:`ground_truth_detections` reports (same tests), found from the ids present
+    in the image: detections need only be computed for these.
+    """
     objs = objects if isinstance(objects, Mapping) else {o.instance_id: o for o in objects}
     ids = np.asarray(instance_id)
     counts = np.bincount(ids.ravel(), minlength=1)
     eye = t_map_optical.translation_m
     wanted = cfg.class_ids
-    max_range_sq = cfg.max_range_m * cfg.max_range_m
     out = []
     for iid in np.flatnonzero(counts >= cfg.min_pixels):  # the few ids in the image, not every object
         o = objs.get(int(iid))
-        if o is not None and o.object_class in wanted:
-            d = o.center_m - eye
-            if float(d @ d) <= max_range_sq:
-                out.append(int(iid))
+        if o is not None and o.object_class in wanted and float(np.linalg.norm(o.center_m - eye)) <= cfg.max_range_m:
+            out.append(int(iid))
     return out
 
 
