@@ -152,4 +152,3 @@ flat in uint v_inst;
 layout(location = 0) out uint f_inst;
 void main() { f_inst = v_inst; }
 """
-
