@@ -97,13 +97,14 @@ class Proc:
             os.killpg(self.popen.pid, sig)
 
     def stop(self, timeout_s: float = 5.0) -> int | None:
-        """SIGINT, then SIGTERM, then SIGKILL the whole process group."""
+        """SIGINT, then SIGTERM, then SIGKILL the whole process group; then SIGKILL what outlived its leader."""
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             if not self.alive():
                 break
             self.signal(sig)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 self.popen.wait(timeout=timeout_s)
+        self.signal(signal.SIGKILL)  # e.g. a `rosbag play --wait-for-subscribers` deaf to SIGINT
         self._log.close()
         return self.popen.returncode
 

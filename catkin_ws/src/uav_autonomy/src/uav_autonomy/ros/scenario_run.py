@@ -153,14 +153,20 @@ def _tail(path: Path, lines: int = 25) -> str:
 
 
 def _stop(proc: subprocess.Popen[bytes], timeout_s: float = 40.0) -> None:
-    """SIGINT roslaunch's process group (it stops every node; rosbag closes the bag), then escalate."""
+    """SIGINT roslaunch's process group (it stops every node; rosbag closes the bag), then escalate.
+
+    Whatever of the group outlives roslaunch is killed: e.g. ``rosbag play --wait-for-subscribers`` ignores
+    SIGINT while it waits (its wait loop does not check for shutdown) and would be left behind.
+    """
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 10.0), (signal.SIGKILL, 5.0)):
         if proc.poll() is not None:
-            return
+            break
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, sig)
         with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=wait_s)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)  # stragglers only: roslaunch has exited or been killed
 
 
 def _overrides(scenario: Scenario, args: argparse.Namespace) -> Scenario:
