@@ -68,6 +68,7 @@ class CpuSampler:
         self.tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
         self.cpu_s: dict[int, tuple[str, float]] = {}
         self.at_start: dict[int, float] | None = None
+        self._other: dict[str, float] = {}  # pid -> when to look at it again (the sampler must stay cheap)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -83,8 +84,9 @@ class CpuSampler:
         while not self._stop.wait(0.5):
             if self.at_start is None and self.started.exists():
                 self.at_start = {pid: cpu for pid, (_, cpu) in self.cpu_s.items()}
+            now = time.monotonic()
             for entry in os.scandir("/proc"):
-                if not entry.name.isdigit():
+                if not entry.name.isdigit() or self._other.get(entry.name, -1.0) > now:
                     continue
                 try:
                     cmd = Path(entry.path, "cmdline").read_bytes()
@@ -92,6 +94,8 @@ class CpuSampler:
                 except OSError:
                     continue
                 if self.marker not in cmd:
+                    # not the run's: look again in a while (a forked process may exec into one of its nodes)
+                    self._other[entry.name] = now + 5.0
                     continue
                 fields = stat.rsplit(")", 1)[1].split()
                 cpu = (int(fields[11]) + int(fields[12])) * self.tick_s  # utime + stime

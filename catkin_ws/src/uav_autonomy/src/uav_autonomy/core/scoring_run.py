@@ -188,7 +188,7 @@ class RunScorer:
         if self.truth.surface_keys.size == 0:
             self._advance(t_s)
             return None
-        self.set_map_accuracy(t_s, voxel_accuracy(keys, self.truth.surface_keys))
+        self.set_map_accuracy(t_s, voxel_accuracy(keys, self.truth.surface_keys, self.truth.surface_columns))
         return self._map_accuracy
 
     def set_map_accuracy(self, t_s: float, accuracy: VoxelAccuracy) -> None:

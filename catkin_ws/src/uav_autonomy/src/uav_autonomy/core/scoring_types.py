@@ -8,6 +8,7 @@ are simulation seconds.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -204,6 +205,13 @@ class SceneTruth:
     ground: GridSnapshot | None = None
     objects: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
     object_classes: tuple[str, ...] = ()
+
+    @functools.cached_property
+    def surface_columns(self) -> npt.NDArray[np.int64]:
+        """The (x, y) column of each of ``surface_keys`` (sorted and unique), computed once."""
+        from uav_autonomy.core.scoring_metrics import key_columns, sorted_unique  # noqa: PLC0415 - imports us
+
+        return key_columns(sorted_unique(self.surface_keys))
 
     @property
     def area_m2(self) -> float:

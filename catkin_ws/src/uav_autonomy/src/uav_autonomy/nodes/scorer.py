@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import csv
 import heapq
+import io
 import itertools
 import json
 import math
@@ -150,6 +151,8 @@ class ScorerNode:
         self._finish_lock = threading.Lock()
         self._final = False
         self.rows: list[dict[str, Any]] = []
+        self._csv_fields: list[str] = []  # columns and rows already in timeseries.csv
+        self._csv_rows = 0
         self.snapshots_due = list(scenario.scoring.snapshot_times_s)
         self.last_layers: GridLayers | None = None
         self.last_features: GridLayers | None = None
@@ -379,7 +382,8 @@ class ScorerNode:
         if not self._accuracy_busy.acquire(blocking=wait):
             return  # the previous export is still running
         try:
-            truth_keys = self.scorer.truth.surface_keys
+            truth = self.scorer.truth  # one truth for the keys and their columns (it is replaced once loaded)
+            truth_keys = truth.surface_keys
             if truth_keys.size == 0:
                 return
             service = f"{self.map_server_ns}/export_occupied"
@@ -398,7 +402,7 @@ class ScorerNode:
             except (OSError, ValueError) as err:
                 rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
                 return
-            accuracy = voxel_accuracy(voxel_keys_from_indices(cells.reshape(-1, 3)), truth_keys)
+            accuracy = voxel_accuracy(voxel_keys_from_indices(cells.reshape(-1, 3)), truth_keys, truth.surface_columns)
             with self.lock:
                 if not self.finished or wait:
                     self.scorer.set_map_accuracy(t_s, accuracy)
@@ -438,14 +442,31 @@ class ScorerNode:
         assert self.run_dir is not None
         try:
             write_atomic(self.run_dir / "metrics.json", json.dumps(json_safe(summary), indent=2))
-            tmp = self.run_dir / "timeseries.csv.tmp"
-            with tmp.open("w", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=list(self.rows[0]))
-                writer.writeheader()
-                writer.writerows(self.rows)
-            os.replace(tmp, self.run_dir / "timeseries.csv")
+            self._write_rows()
         except OSError as err:
             rospy.logerr_throttle(30.0, f"scorer: cannot write metrics to {self.run_dir}: {err}")
+
+    def _write_rows(self) -> None:
+        """The time series: new rows are appended (rewriting it every tick grew with the run); it is written
+        whole, atomically, when it starts or its columns change."""
+        assert self.run_dir is not None
+        path = self.run_dir / "timeseries.csv"
+        fields = list(self.rows[0])
+        whole = self._csv_fields != fields or any(list(r) != fields for r in self.rows[self._csv_rows :])
+        if whole:
+            tmp = path.with_suffix(".csv.tmp")
+            with tmp.open("w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+                writer.writeheader()
+                writer.writerows(self.rows)
+            os.replace(tmp, path)
+        else:
+            buf = io.StringIO()  # one write() per tick: a reader sees whole rows
+            csv.DictWriter(buf, fieldnames=fields).writerows(self.rows[self._csv_rows :])
+            with path.open("a", newline="") as fh:
+                fh.write(buf.getvalue())
+        self._csv_fields = fields
+        self._csv_rows = len(self.rows)
 
     def _grab_images(self) -> None:
         for cam in self.cameras:
