@@ -23,10 +23,11 @@ Results (``bench/results/latest.jsonl``):
 * ``scenario.loiter.cpu_s_per_sim_s``: CPU seconds of all the run's processes per simulated second
   (sampled from /proc; the notes break it down per node); on 2 cores 3x real time needs <= 0.67.
 
-Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's speed
-and the loiter's path (it depends on the map, which depends on the frames the map server had time for) vary
-from run to run (2.5x-2.7x on this machine): each scenario runs ``--repeats`` times, alternated, and the
-figures are the means, with every run's real-time factor in the notes.
+Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
+speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
+vary from run to run (2.2x-2.7x for the loiter on this shared 2-core VM, whose speed drifts by up to ~20 %):
+each scenario runs ``--repeats`` times, alternated, and the figures are the means, with every run's
+real-time factor in the notes.
 """
 
 from __future__ import annotations
