@@ -28,9 +28,9 @@ import rospy  # noqa: E402
 import rostest  # noqa: E402
 import tf2_ros  # noqa: E402
 from geometry_msgs.msg import PointStamped, TransformStamped  # noqa: E402
+from helpers.sim_clock import SimClock  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from nav_msgs.msg import Path as PathMsg  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
@@ -95,9 +95,7 @@ class MapChain(unittest.TestCase):
     @classmethod
     def setUpClass(cls) -> None:
         rospy.init_node("map_chain_check")
-        cls.pub_clock = rospy.Publisher("/clock", Clock, queue_size=1)
-        cls.sim_s = SIM_START_S
-        threading.Thread(target=cls._clock, daemon=True).start()
+        cls.clock = SimClock(SIM_START_S)  # simulation time from SIM_START_S, 50 Hz
         wait_until(rospy.get_time, lambda t: t >= SIM_START_S, timeout_s=10.0, describe="/clock")
         tf = TransformStamped()
         tf.header.stamp = rospy.Time.from_sec(SIM_START_S - 10.0)
@@ -143,13 +141,6 @@ class MapChain(unittest.TestCase):
         cls.pub_odom.publish(odom)
 
     @classmethod
-    def _clock(cls) -> None:
-        while not rospy.is_shutdown():
-            cls.pub_clock.publish(Clock(clock=rospy.Time.from_sec(cls.sim_s)))
-            cls.sim_s += 0.02
-            time.sleep(0.02)
-
-    @classmethod
     def _add(cls, store: list) -> object:
         def cb(msg: object) -> None:
             with cls.lock:
@@ -159,7 +150,7 @@ class MapChain(unittest.TestCase):
 
     def insert(self, points: np.ndarray) -> None:
         n = len(self.stats)
-        self.pub_cloud.publish(cloud_msg(points, rospy.Time.from_sec(self.sim_s)))
+        self.pub_cloud.publish(cloud_msg(points, rospy.Time.from_sec(self.clock.now_s)))
         stats = wait_until(lambda: self.stats[n:], lambda s: len(s) > 0, timeout_s=20.0, describe="insert_stats")
         self.assertTrue(stats[0].inserted, stats[0].drop_reason)
 

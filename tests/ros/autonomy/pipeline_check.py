@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import sys
-import threading
 import time
 import unittest
 from pathlib import Path
@@ -18,9 +17,9 @@ import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
 from geometry_msgs.msg import Point, PointStamped  # noqa: E402
+from helpers.sim_clock import SimClock  # noqa: E402
 from nav_msgs.msg import MapMetaData, Odometry  # noqa: E402
 from nav_msgs.msg import Path as PathMsg  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
 from uav_autonomy.core.features import frontier_feature  # noqa: E402
@@ -58,9 +57,7 @@ class Pipeline(unittest.TestCase):
     def setUpClass(cls) -> None:
         rospy.init_node("pipeline_check")
         # Simulation time starts at 1000 s (last_seen_s is float32 in GridLayers: sim seconds, not epoch).
-        cls.pub_clock = rospy.Publisher("/clock", Clock, queue_size=1)
-        cls.clock_stop = threading.Event()
-        threading.Thread(target=cls._clock, daemon=True).start()
+        cls.clock = SimClock(1000.0, step_s=0.01)
         wait_until(rospy.get_time, lambda t: t >= 1000.0, timeout_s=10.0, describe="/clock")
         cls.last: dict[str, object] = {}
         for topic, mtype in [
@@ -84,13 +81,6 @@ class Pipeline(unittest.TestCase):
         cls.set_target = rospy.ServiceProxy("/goal_selector/set_target", SetTarget)
         cls.timer = rospy.Timer(rospy.Duration(0.1), cls._odom)
         wait_until(cls.pub_target.get_num_connections, lambda n: n >= 1, timeout_s=10.0, describe="target subscriber")
-
-    @classmethod
-    def _clock(cls) -> None:
-        start = time.monotonic()
-        while not cls.clock_stop.is_set():
-            cls.pub_clock.publish(Clock(clock=rospy.Time.from_sec(1000.0 + time.monotonic() - start)))
-            time.sleep(0.01)
 
     @classmethod
     def _odom(cls, _e: object) -> None:
