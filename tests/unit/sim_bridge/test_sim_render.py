@@ -52,14 +52,18 @@ def _world_points(frame_depth: np.ndarray, cam: CameraModel, pose: RigidTransfor
 POSES = [((0.0, 0.0), 0.4), ((150.0, -60.0), 2.0), ((-250.0, 130.0), -0.6), ((60.0, 200.0), 1.2)]
 
 
+def _views(world: World, xy: tuple[float, float], yaw: float) -> list[tuple[CameraModel, RigidTransform]]:
+    """The nadir and forward cameras of a vehicle 40 m above the ground at ``xy``, heading ``yaw``."""
+    z = float(world.height_at(*xy)) + 40.0
+    base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
+    return [(cam, cam.optical_pose(base)) for cam in (NADIR, FORWARD)]
+
+
 @pytest.mark.parametrize(("xy", "yaw"), POSES)
 def test_segmentation_ids_and_depth_match_the_object_list(
     default_world: World, default_renderer: Renderer, xy: tuple[float, float], yaw: float
 ) -> None:
-    z = float(default_world.height_at(*xy)) + 40.0
-    base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
-    for cam in (NADIR, FORWARD):
-        pose = cam.optical_pose(base)
+    for cam, pose in _views(default_world, xy, yaw):
         frame = default_renderer.render(cam, pose)
         ids = frame.instance_id
         assert ids.max() <= len(default_world.objects)
@@ -96,10 +100,7 @@ def test_the_instance_only_pass_gives_the_full_renders_ids(
     default_world: World, default_renderer: Renderer, xy: tuple[float, float], yaw: float
 ) -> None:
     """Detections use the cheaper instance-only pass: the same ids, 0 for the sky and beyond its far plane."""
-    z = float(default_world.height_at(*xy)) + 40.0
-    base = RigidTransform.from_rpy([xy[0], xy[1], z], yaw_rad=yaw)
-    for cam in (NADIR, FORWARD):
-        pose = cam.optical_pose(base)
+    for cam, pose in _views(default_world, xy, yaw):
         full = default_renderer.render(cam, pose)
         ids = default_renderer.render_instances(cam, pose)
         assert ids.dtype == np.uint16
