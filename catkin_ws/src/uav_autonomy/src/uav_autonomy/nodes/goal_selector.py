@@ -67,7 +67,9 @@ class GoalSelectorNode:
 
     def start(self) -> None:
         self.pub_goal = rospy.Publisher("/autonomy/goal", PointStamped, queue_size=1)
-        self.pub_reason = rospy.Publisher("/autonomy/goal_reason", GoalReason, queue_size=1)
+        # Every goal is scored and recorded: a queue of 1 per connection dropped one of a burst for a subscriber
+        # that was slower to take it (the recorder), so the bag and the live scorer disagreed.
+        self.pub_reason = rospy.Publisher("/autonomy/goal_reason", GoalReason, queue_size=50)
         self.pub_weights = rospy.Publisher("/autonomy/weights", FeatureWeights, queue_size=1, latch=True)
         self.pub_target = rospy.Publisher("/autonomy/target", SearchTarget, queue_size=1, latch=True)
         self._publish_weights()

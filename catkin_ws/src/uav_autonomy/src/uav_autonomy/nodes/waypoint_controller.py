@@ -112,7 +112,7 @@ class WaypointControllerNode:
     def start(self) -> None:
         self.link.open(rospy.get_time())
         self.pub_state = rospy.Publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
-        self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=1)
+        self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=50)  # scored and recorded: no drops
         self.pub_odom = rospy.Publisher("/uav/controller/odom", Odometry, queue_size=5)
         rospy.Subscriber("/autonomy/path", PathMsg, self.on_path, queue_size=1)
         rospy.Subscriber("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
