@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
@@ -45,6 +45,7 @@ class Px4Model:
     last_heartbeat_s: float | None = None
     flavor: AutopilotFlavor = AutopilotFlavor.PX4
     requests: list[object] = field(default_factory=list)
+    heard: Telemetry = field(default_factory=Telemetry)
 
     def handle(self, now: float, actions: list[object]) -> None:
         for a in actions:
@@ -84,17 +85,10 @@ class Px4Model:
             self.last_heartbeat_s = now
 
     def telemetry(self) -> Telemetry:
+        """What the shell holds: while the link is down, the last messages heard, with their old stamps."""
         if not self.link_up:
-            return Telemetry(
-                heartbeat_s=self.last_heartbeat_s,
-                custom_mode=px4_custom_mode(self.mode),
-                flavor=self.flavor,
-                armed=self.armed,
-                in_air=self.pos[2] > 0.5,
-                position_enu_m=None,
-                position_s=None,
-            )
-        return Telemetry(
+            return self.heard
+        self.heard = Telemetry(
             heartbeat_s=self.last_heartbeat_s,
             custom_mode=px4_custom_mode(self.mode),
             flavor=self.flavor,
@@ -104,19 +98,36 @@ class Px4Model:
             position_s=self.last_heartbeat_s,
             yaw_enu_rad=0.0,
         )
+        return self.heard
 
 
 class Rig:
-    def __init__(self, **cfg: object) -> None:
+    """The controller against the model, stepped every ``DT`` simulated seconds.
+
+    ``wall_per_tick_s``: also pass a wall clock that advances this much per step (None: no wall clock).
+    0.005 is a simulation running 10x faster than real time; the model's messages are stamped on both.
+    """
+
+    def __init__(self, *, wall_per_tick_s: float | None = None, **cfg: object) -> None:
         self.ctl = WaypointController(from_mapping(ControllerConfig, cfg, source="test"))
         self.ap = Px4Model()
         self.now = 0.0
+        self.wall_per_tick_s = wall_per_tick_s
+        self.wall_s: float | None = None if wall_per_tick_s is None else 1000.0
+        self.heard_wall_s: float | None = None
         self.log: list[tuple[float, object]] = []
 
     def tick(self) -> list[object]:
         self.now = round(self.now + DT, 6)
         self.ap.physics(self.now)
-        actions = self.ctl.step(self.now, self.ap.telemetry())
+        telemetry = self.ap.telemetry()
+        if self.wall_s is not None and self.wall_per_tick_s is not None:
+            self.wall_s = round(self.wall_s + self.wall_per_tick_s, 9)
+            if self.ap.link_up:
+                self.heard_wall_s = self.wall_s
+            wall_position = self.heard_wall_s if telemetry.position_s is not None else None
+            telemetry = replace(telemetry, heartbeat_wall_s=self.heard_wall_s, position_wall_s=wall_position)
+        actions = self.ctl.step(self.now, telemetry, self.wall_s)
         self.log.extend((self.now, a) for a in actions)
         self.ap.handle(self.now, actions)
         return actions
@@ -329,6 +340,81 @@ def test_link_drop_stops_setpoints_and_reconnect_sends_nothing_stale() -> None:
     assert np.linalg.norm(np.asarray(sp.position_enu_m) - rig.ap.pos) < 1.0  # fresh: where it is now
 
 
+def test_a_simulation_running_ahead_of_its_messages_is_not_a_lost_link() -> None:
+    # 10x real time; the autopilot's messages stop arriving for 2.5 simulated seconds (0.25 wall s: a router
+    # or this process starved of CPU), longer than both timeouts: the controller keeps flying.
+    rig = Rig(wall_per_tick_s=DT / 10, link_timeout_s=2.0, position_timeout_s=1.0, wall_floor_s=0.5)
+    rig.airborne()
+    rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)
+    rig.ctl.set_path([[0, 0, 10], [100, 0, 10]])
+    rig.run(0.5)
+    rig.ap.link_up = False
+    silent = rig.now
+    rig.run(2.5)
+    rig.ap.link_up = True
+    assert rig.ctl.state is ControllerState.AUTONOMOUS
+    assert rig.ctl.status().link_ok
+    assert all(isinstance(a, SendSetpoint) for t, a in rig.log if t > silent)
+    assert len([a for t, a in rig.log if t > silent]) == round(2.5 / DT)  # not one setpoint missed
+    rig.run(1.0)
+    assert rig.ap.pos[0] > 20.0  # still flying the path
+    # Silence of more than the wall floor as well is a lost link, at any speed.
+    rig.ap.link_up = False
+    silent = rig.now
+    rig.run(10.0)  # 1 wall s
+    assert rig.ctl.state is ControllerState.IDLE
+    assert not rig.ctl.status().link_ok
+    stopped = max(t for t, a in rig.log if isinstance(a, SendSetpoint))
+    # Position is stale after 1 simulated s and the 0.5 wall s floor (5 simulated s at 10x), not before.
+    assert stopped == pytest.approx(silent + 5.0, abs=DT + 1e-9)
+
+
+def test_without_a_wall_clock_timeouts_are_in_simulated_time() -> None:
+    rig = Rig(position_timeout_s=1.0, wall_floor_s=0.5)
+    rig.airborne()
+    rig.ap.link_up = False
+    silent = rig.now
+    rig.run(2.0)
+    assert rig.ctl.state is ControllerState.IDLE
+    stopped = max(t for t, a in rig.log if isinstance(a, SendSetpoint))
+    assert stopped == pytest.approx(silent + 1.0, abs=DT + 1e-9)
+
+
+def test_at_real_time_the_wall_floor_changes_no_timeout() -> None:
+    rig = Rig(wall_per_tick_s=DT, position_timeout_s=1.0, wall_floor_s=0.5)
+    rig.airborne()
+    rig.ap.link_up = False
+    silent = rig.now
+    rig.run(2.0)
+    assert rig.ctl.state is ControllerState.IDLE
+    stopped = max(t for t, a in rig.log if isinstance(a, SendSetpoint))
+    assert stopped == pytest.approx(silent + 1.0, abs=DT + 1e-9)
+
+
+def test_giving_up_waits_for_the_wall_floor_but_retries_do_not() -> None:
+    def mode_requests(rig: Rig) -> list[float]:
+        return [t for t, a in rig.log if isinstance(a, RequestMode)]
+
+    plain = Rig(max_mode_attempts=2, mode_retry_s=0.5)
+    frozen = Rig(max_mode_attempts=2, mode_retry_s=0.5, wall_per_tick_s=0.0, wall_floor_s=0.5)
+    for rig in (plain, frozen):
+        rig.ap.reject_offboard = 100
+        rig.run(0.1)
+        rig.ctl.request(ControllerState.TAKEOFF, rig.now)
+        rig.run(5.0)
+    # Retries are on simulated time alone (lockstep runs stay deterministic) ...
+    assert mode_requests(frozen) == mode_requests(plain)
+    assert len(mode_requests(plain)) == 2
+    assert plain.ctl.state is ControllerState.IDLE
+    # ... but while the wall clock stands still, the controller does not give up: it keeps streaming.
+    assert frozen.ctl.state is ControllerState.TAKEOFF
+    assert isinstance(frozen.tick()[0], SendSetpoint)
+    frozen.wall_per_tick_s = DT
+    frozen.run(0.6)
+    assert frozen.ctl.state is ControllerState.IDLE
+    assert "did not enter OFFBOARD after 2" in frozen.ctl.status().last_event
+
+
 def test_rtl_and_land_requests_use_autopilot_modes() -> None:
     rig = Rig()
     rig.airborne()
@@ -401,5 +487,7 @@ def test_controller_config_validation() -> None:
         from_mapping(ControllerConfig, {"setpoint_rate_hz": 5.0}, source="t")
     with pytest.raises(ConfigError, match="prestream_s"):
         from_mapping(ControllerConfig, {"prestream_s": 0.5}, source="t")
+    with pytest.raises(ConfigError, match="wall_floor_s"):
+        from_mapping(ControllerConfig, {"wall_floor_s": -1.0}, source="t")
     with pytest.raises(ConfigError, match="unknown key"):
         from_mapping(ControllerConfig, {"setpoint_hz": 20.0}, source="t")

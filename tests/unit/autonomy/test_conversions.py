@@ -111,6 +111,27 @@ def test_odometry_from_autopilot_telemetry_is_enu_flu() -> None:
     assert msg.twist.twist.linear.y == pytest.approx(2.0)
 
 
+def test_link_stamps_arrivals_on_both_clocks_and_reconnects_only_after_the_wall_floor() -> None:
+    from uav_autonomy.ros.autonomy_mavlink import MavlinkLink  # noqa: PLC0415
+
+    link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, source_component=191, target_system=1,
+                       target_component=1, reconnect_after_s=5.0, wall_floor_s=0.5)  # fmt: skip
+    link.open(0.0, 100.0)
+    try:
+        link._handle(_mavlink_frame("heartbeat", 2, 12, 0, 0, 4, 3), 1.0, 100.1)
+        link._handle(_mavlink_frame("local_position_ned", 1000, 10.0, 5.0, -20.0, 0.0, 0.0, 0.0), 1.0, 100.1)
+        t = link.telemetry()
+        assert (t.heartbeat_s, t.heartbeat_wall_s, t.position_s, t.position_wall_s) == (1.0, 100.1, 1.0, 100.1)
+        link.poll(20.0, 100.3)  # 19 simulated s of silence, but 0.2 wall s: a simulation running ahead
+        assert link.reconnects == 0
+        assert link.telemetry().heartbeat_s == 1.0
+        link.poll(20.0, 100.7)  # and now 0.6 wall s as well: the link is silent, reopen it
+        assert link.reconnects == 1
+        assert link.telemetry().heartbeat_s is None
+    finally:
+        link.close()
+
+
 def test_octomap_read_from_its_serialized_bytes() -> None:
     import io  # noqa: PLC0415
 

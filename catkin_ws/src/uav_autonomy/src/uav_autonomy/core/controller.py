@@ -27,6 +27,16 @@ States and transitions (see docs/autonomy.md for the full table):
   link drops (no heartbeat for ``link_timeout_s``) or position telemetry goes
   stale, it stops sending setpoints and goes to IDLE; after the link returns it
   sends nothing until it is asked again, so no stale setpoint is ever sent.
+
+Time: every timeout and retry interval is measured in the caller's (simulated)
+time. When the shell also passes a wall clock, a timeout (link, position) or a
+give-up (after the last mode or arm request) happens only once ``wall_floor_s``
+wall seconds have passed as well: a lockstep simulation may run ten times faster
+than real time, and a process starved of CPU for a fraction of a wall second (or
+a router forwarding in a burst) would otherwise look like a lost link. The SITL's
+failsafes use the same rule. Retries stay on simulated time alone, so lockstep
+runs stay deterministic; only failure paths wait for the wall clock. At real time
+the floor is below every interval, so it changes nothing on a real vehicle.
 """
 
 from __future__ import annotations
@@ -99,6 +109,7 @@ class ControllerConfig:
     link_timeout_s: float = 2.0
     reconnect_after_s: float = 5.0
     position_timeout_s: float = 1.0
+    wall_floor_s: float = 0.5
     takeoff_height_m: float = 10.0
     altitude_tolerance_m: float = 1.0
     acceptance_radius_m: float = 3.0
@@ -131,6 +142,9 @@ class ControllerConfig:
             if not (math.isfinite(value) and value > 0.0):
                 msg = f"{name} must be a finite number > 0, got {value}"
                 raise ValueError(msg)
+        if not (math.isfinite(self.wall_floor_s) and 0.0 <= self.wall_floor_s <= 60.0):
+            msg = f"wall_floor_s must be in [0, 60] s (0 = simulated time only), got {self.wall_floor_s}"
+            raise ValueError(msg)
         if not (math.isfinite(self.odom_rate_hz) and self.odom_rate_hz >= 0.0):
             msg = f"odom_rate_hz must be >= 0 (0 = do not publish odometry), got {self.odom_rate_hz}"
             raise ValueError(msg)
@@ -154,12 +168,14 @@ class Telemetry:
 
     Attributes:
         heartbeat_s: arrival time of the last autopilot HEARTBEAT (None: never).
+        heartbeat_wall_s: the same arrival on the wall clock (None: the shell has no wall clock).
         custom_mode: its ``custom_mode``.
         flavor: mode table of the autopilot.
         armed: ``base_mode`` has the armed flag.
         in_air: the vehicle is flying (EXTENDED_SYS_STATE, or armed and > 1 m up).
         position_enu_m: last LOCAL_POSITION_NED converted to ENU (None: never).
         position_s: arrival time of that position.
+        position_wall_s: the same arrival on the wall clock (None: the shell has no wall clock).
         yaw_enu_rad: last ATTITUDE yaw in ENU (None: never).
     """
 
@@ -171,6 +187,8 @@ class Telemetry:
     position_enu_m: Vec3 | None = None
     position_s: float | None = None
     yaw_enu_rad: float | None = None
+    heartbeat_wall_s: float | None = None
+    position_wall_s: float | None = None
 
     @property
     def mode(self) -> FlightMode:
@@ -234,8 +252,10 @@ class _Engagement:
     offboard_confirmed: bool = False
     mode_attempts: int = 0
     last_mode_request_s: float | None = None
+    last_mode_request_wall_s: float | None = None
     arm_attempts: int = 0
     last_arm_request_s: float | None = None
+    last_arm_request_wall_s: float | None = None
     armed_seen: bool = False
     takeoff_sent: bool = False
     #: The autopilot's mode when OFFBOARD was first requested (a later RTL/LAND is a failsafe's, not ours).
@@ -247,6 +267,7 @@ class _AutopilotModeRequest:
     mode: FlightMode
     attempts: int = 0
     last_request_s: float | None = None
+    last_request_wall_s: float | None = None
     confirmed: bool = False
 
 
@@ -297,6 +318,7 @@ class WaypointController:
         self._targets = _Targets()
         self._telemetry = Telemetry()
         self._link_ok = False
+        self._now_wall_s: float | None = None
         self._last_event = "started"
         self._queued: list[Action] = []
         self._events: list[str] = []
@@ -410,12 +432,22 @@ class WaypointController:
             self.request(ControllerState.MANUAL, now_s)
 
     # -------------------------------------------------------------------- step
-    def step(self, now_s: float, telemetry: Telemetry) -> list[Action]:
-        """Advance to ``now_s`` with fresh telemetry; returns what to send now."""
+    def step(self, now_s: float, telemetry: Telemetry, now_wall_s: float | None = None) -> list[Action]:
+        """Advance to ``now_s`` with fresh telemetry; returns what to send now.
+
+        Args:
+            now_s: current (simulated) time, the clock of ``telemetry``'s ``*_s`` stamps.
+            telemetry: what the shell last heard.
+            now_wall_s: current wall-clock time, the clock of its ``*_wall_s`` stamps (None: judge every
+                interval in ``now_s`` alone; see the module docstring).
+        """
         self._telemetry = telemetry
+        self._now_wall_s = now_wall_s
         cfg = self.config
         actions, self._queued = self._queued, []
-        link_ok = telemetry.heartbeat_s is not None and now_s - telemetry.heartbeat_s <= cfg.link_timeout_s
+        link_ok = telemetry.heartbeat_s is not None and not self._timed_out(
+            now_s, telemetry.heartbeat_s, telemetry.heartbeat_wall_s, cfg.link_timeout_s
+        )
         if not link_ok:
             if self._link_ok:
                 self._event("MAVLink link lost (no heartbeat): stopped sending setpoints")
@@ -433,6 +465,16 @@ class WaypointController:
         return actions + self._step_offboard(now_s, telemetry)
 
     # ------------------------------------------------------------- internals
+    def _timed_out(self, now_s: float, since_s: float, since_wall_s: float | None, timeout_s: float) -> bool:
+        """More than ``timeout_s`` of caller time since ``since_s``, and the wall floor (see the module docstring)."""
+        return now_s - since_s > timeout_s and self._wall_floor_passed(since_wall_s)
+
+    def _wall_floor_passed(self, since_wall_s: float | None) -> bool:
+        """``wall_floor_s`` wall seconds since ``since_wall_s`` (True without a wall clock)."""
+        if self._now_wall_s is None or since_wall_s is None:
+            return True
+        return self._now_wall_s - since_wall_s >= self.config.wall_floor_s
+
     def _event(self, text: str) -> None:
         self._last_event = text
         self._events.append(text)
@@ -501,10 +543,13 @@ class WaypointController:
             return []
         if req.last_request_s is None or now_s - req.last_request_s >= self.config.mode_retry_s:
             if req.attempts >= self.config.max_mode_attempts:
+                if not self._wall_floor_passed(req.last_request_wall_s):
+                    return []
                 self._go_idle(f"autopilot did not enter {req.mode.value} after {req.attempts} requests")
                 return []
             req.attempts += 1
             req.last_request_s = now_s
+            req.last_request_wall_s = self._now_wall_s
             return [RequestMode(req.mode)]
         return []
 
@@ -514,7 +559,9 @@ class WaypointController:
         if eng is None:  # pragma: no cover - _enter always sets it
             eng = self._engagement = _Engagement()
         fresh = (
-            t.position_s is not None and t.position_enu_m is not None and now_s - t.position_s <= cfg.position_timeout_s
+            t.position_s is not None
+            and t.position_enu_m is not None
+            and not self._timed_out(now_s, t.position_s, t.position_wall_s, cfg.position_timeout_s)
         )
         if not fresh:
             self._go_idle("position telemetry stale: stopped sending setpoints")
@@ -564,6 +611,8 @@ class WaypointController:
         if not (enough and due):
             return []
         if eng.mode_attempts >= cfg.max_mode_attempts:
+            if not self._wall_floor_passed(eng.last_mode_request_wall_s):
+                return []
             self._go_idle(f"autopilot did not enter OFFBOARD after {eng.mode_attempts} requests")
             return None
         if eng.mode_attempts > 0:
@@ -572,6 +621,7 @@ class WaypointController:
             eng.mode_at_request = t.mode
         eng.mode_attempts += 1
         eng.last_mode_request_s = now_s
+        eng.last_mode_request_wall_s = self._now_wall_s
         return [RequestMode(FlightMode.OFFBOARD)]
 
     def _arm_and_takeoff(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action]:
@@ -581,10 +631,13 @@ class WaypointController:
             if not due:
                 return []
             if eng.arm_attempts >= cfg.max_arm_attempts:
+                if not self._wall_floor_passed(eng.last_arm_request_wall_s):
+                    return []
                 self._go_idle(f"vehicle did not arm after {eng.arm_attempts} requests")
                 return []
             eng.arm_attempts += 1
             eng.last_arm_request_s = now_s
+            eng.last_arm_request_wall_s = self._now_wall_s
             return [RequestArm(arm=True)]
         if t.flavor is AutopilotFlavor.ARDUPILOT and not eng.takeoff_sent:
             eng.takeoff_sent = True

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from pathlib import Path
 
 import rospy
@@ -100,6 +101,7 @@ class WaypointControllerNode:
             target_system=config.target_system,
             target_component=config.target_component,
             reconnect_after_s=config.reconnect_after_s,
+            wall_floor_s=config.wall_floor_s,
         )
         self._lock = threading.Lock()
         self._last_state_pub_s = -math.inf
@@ -110,7 +112,7 @@ class WaypointControllerNode:
         self._last_step_s: float | None = None
 
     def start(self) -> None:
-        self.link.open(rospy.get_time())
+        self.link.open(rospy.get_time(), time.monotonic())
         self.pub_state = rospy.Publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
         self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=50)  # scored and recorded: no drops
         self.pub_odom = rospy.Publisher("/uav/controller/odom", Odometry, queue_size=5)
@@ -129,9 +131,10 @@ class WaypointControllerNode:
             return
         self._last_step_s = now
         with self._lock:
-            self.link.poll(now)
+            now_wall = time.monotonic()  # the wall floor under every timeout (see core.controller)
+            self.link.poll(now, now_wall)
             telemetry = self.link.telemetry()
-            actions = self.core.step(now, telemetry)
+            actions = self.core.step(now, telemetry, now_wall)
             try:
                 self.link.execute(actions, now)
             except InvalidInputError as err:  # the core never emits these; the shell double-checks

@@ -6,8 +6,13 @@ snapshot and executes the controller's actions. Every time is the caller's clock
 rate in simulated seconds). Frames: MAVLink NED <-> ROS ENU only through
 :mod:`uav_common.frames`.
 
-Reconnection: without a heartbeat for ``reconnect_after_s`` the socket is closed
-and opened again (a UDP server forgets stale peers, a TCP client redials).
+A second, wall clock is optional (``now_wall_s``): arrivals are stamped on both
+clocks, so the controller can tell a lost link from a simulation that ran ahead of
+a process starved of CPU.
+
+Reconnection: without a heartbeat for ``reconnect_after_s`` (and, with a wall clock,
+``wall_floor_s`` wall seconds as well) the socket is closed and opened again (a UDP
+server forgets stale peers, a TCP client redials).
 """
 
 from __future__ import annotations
@@ -88,11 +93,13 @@ class OdometryReading:
 @dataclass
 class _State:
     heartbeat_s: float | None = None
+    heartbeat_wall_s: float | None = None
     custom_mode: int = 0
     base_mode: int = 0
     flavor: AutopilotFlavor = AutopilotFlavor.PX4
     position_ned: tuple[float, float, float] | None = None
     position_s: float | None = None
+    position_wall_s: float | None = None
     yaw_ned_rad: float | None = None
     velocity_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q_ned_frd_wxyz: tuple[float, float, float, float] | None = None
@@ -115,6 +122,7 @@ class MavlinkLink:
         target_system: int,
         target_component: int,
         reconnect_after_s: float,
+        wall_floor_s: float = 0.0,
     ) -> None:
         self.url = url
         self.source_system = source_system
@@ -122,14 +130,16 @@ class MavlinkLink:
         self.target_system = target_system
         self.target_component = target_component
         self.reconnect_after_s = reconnect_after_s
+        self.wall_floor_s = wall_floor_s
         self._conn: object | None = None
         self._st = _State()
         self._opened_s = 0.0
+        self._opened_wall_s: float | None = None
         self._last_heartbeat_out_s: float | None = None
         self.reconnects = 0
 
     # ------------------------------------------------------------ lifecycle
-    def open(self, now_s: float) -> None:
+    def open(self, now_s: float, now_wall_s: float | None = None) -> None:
         """Open the connection (binds for ``udpin:``/``tcpin:``).
 
         Raises:
@@ -153,6 +163,7 @@ class MavlinkLink:
             msg = f"cannot open MAVLink connection '{self.url}': {err}"
             raise MavlinkLinkError(msg) from err
         self._opened_s = now_s
+        self._opened_wall_s = now_wall_s
 
     def close(self) -> None:
         conn = self._conn
@@ -161,8 +172,8 @@ class MavlinkLink:
             conn.close()  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------- receive
-    def poll(self, now_s: float) -> None:
-        """Read every pending message; reopen the socket after ``reconnect_after_s`` of silence."""
+    def poll(self, now_s: float, now_wall_s: float | None = None) -> None:
+        """Read every pending message; reopen the socket after ``reconnect_after_s`` of silence (see module doc)."""
         conn = self._require()
         while True:
             try:
@@ -171,15 +182,19 @@ class MavlinkLink:
                 msg = None
             if msg is None:
                 break
-            self._handle(msg, now_s)
-        last = self._st.heartbeat_s if self._st.heartbeat_s is not None else self._opened_s
-        if now_s - last > self.reconnect_after_s:
+            self._handle(msg, now_s, now_wall_s)
+        st = self._st
+        heard = st.heartbeat_s is not None
+        last = st.heartbeat_s if heard else self._opened_s
+        last_wall = st.heartbeat_wall_s if heard else self._opened_wall_s
+        silent_wall = now_wall_s is None or last_wall is None or now_wall_s - last_wall >= self.wall_floor_s
+        if now_s - last > self.reconnect_after_s and silent_wall:
             self.close()
-            self.open(now_s)
+            self.open(now_s, now_wall_s)
             self.reconnects += 1
-            self._st.heartbeat_s = None
+            st.heartbeat_s = st.heartbeat_wall_s = None
 
-    def _handle(self, msg: object, now_s: float) -> None:
+    def _handle(self, msg: object, now_s: float, now_wall_s: float | None = None) -> None:
         mtype = msg.get_type()  # type: ignore[attr-defined]
         src_sys = msg.get_srcSystem()  # type: ignore[attr-defined]
         src_comp = msg.get_srcComponent()  # type: ignore[attr-defined]
@@ -190,6 +205,7 @@ class MavlinkLink:
             if msg.type == _MAV_TYPE_GCS or msg.autopilot == _MAV_AUTOPILOT_INVALID:  # type: ignore[attr-defined]
                 return
             st.heartbeat_s = now_s
+            st.heartbeat_wall_s = now_wall_s
             st.custom_mode = int(msg.custom_mode)  # type: ignore[attr-defined]
             st.base_mode = int(msg.base_mode)  # type: ignore[attr-defined]
             st.flavor = AutopilotFlavor.from_heartbeat(int(msg.autopilot))  # type: ignore[attr-defined]
@@ -197,6 +213,7 @@ class MavlinkLink:
             st.position_ned = (float(msg.x), float(msg.y), float(msg.z))  # type: ignore[attr-defined]
             st.velocity_ned_mps = (float(msg.vx), float(msg.vy), float(msg.vz))  # type: ignore[attr-defined]
             st.position_s = now_s
+            st.position_wall_s = now_wall_s
         elif mtype == "ATTITUDE":
             roll, pitch, yaw = float(msg.roll), float(msg.pitch), float(msg.yaw)  # type: ignore[attr-defined]
             if all(math.isfinite(v) for v in (roll, pitch, yaw)):
@@ -245,6 +262,8 @@ class MavlinkLink:
             position_enu_m=pos_enu,
             position_s=st.position_s,
             yaw_enu_rad=None if st.yaw_ned_rad is None else yaw_ned_to_enu(st.yaw_ned_rad),
+            heartbeat_wall_s=st.heartbeat_wall_s,
+            position_wall_s=st.position_wall_s,
         )
 
     def battery(self) -> BatteryReading:
