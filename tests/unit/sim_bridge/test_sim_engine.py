@@ -84,6 +84,56 @@ def test_detection_only_render_detects_what_the_full_render_does(engine_of, smal
     assert seen >= 8  # the comparison saw the objects themselves, not just empty frames
 
 
+def test_a_view_without_people_or_vehicles_is_not_rendered_for_detections(engine_of, small_world: World) -> None:
+    """A detection-only camera skips its render when no person or vehicle can be in view; the detections are
+    those of the full render and the objects' detections regardless."""
+    eng_full, eng_cheap = engine_of(), engine_of()
+    renders = []
+    real = eng_cheap.renderer.render_instances
+    targets = [*small_world.objects_of_class(ObjectClass.PERSON), *small_world.objects_of_class(ObjectClass.VEHICLE)]
+    rng = np.random.default_rng(5)
+    skipped = seen = 0
+    t = 0.0
+    try:
+        eng_cheap.renderer.render_instances = lambda *a, **k: renders.append(1) or real(*a, **k)  # type: ignore[method-assign]
+        for k in range(60):
+            obj = targets[k % len(targets)]
+            ox, oy, oz = obj.pose.position_m
+            # around the objects, at random headings: sometimes facing them, often not
+            x, y = ox + rng.uniform(-80.0, 80.0), oy + rng.uniform(-80.0, 80.0)
+            t += 0.1
+            state = _state(t, (x, y, oz + rng.uniform(15.0, 60.0)), yaw=rng.uniform(-math.pi, math.pi))
+            before = len(renders)
+            full = eng_full.step(state, home=None, wanted=lambda n: True)
+            cheap = eng_cheap.step(state, home=None, wanted=lambda n: False)
+            for a, b in zip(full.cameras, cheap.cameras, strict=True):
+                assert b.detections is not None
+                assert [d.instance_id for d in a.detections or []] == [d.instance_id for d in b.detections]
+                seen += len(b.detections)
+                if not eng_cheap.detectables_in_view(eng_cheap._detection_cameras[b.camera.name], b.t_map_optical):
+                    assert b.detections == []
+            skipped += 2 - (len(renders) - before)
+    finally:
+        del eng_cheap.renderer.render_instances
+    assert skipped > 10  # both cases happened
+    assert seen > 5
+    # a person moved into an empty view is seen there (the spheres follow the objects)
+    eng = engine_of()
+    person = small_world.objects_of_class(ObjectClass.PERSON)[0]
+    px, py, pz = person.pose.position_m
+    cam = eng._detection_cameras["forward"]
+    views = (
+        cam.optical_pose(RigidTransform.from_rpy([px + dx, py + dy, pz + 25.0], yaw_rad=yaw))
+        for dx in (-150.0, -60.0, 60.0, 150.0)
+        for dy in (-150.0, -60.0, 60.0, 150.0)
+        for yaw in (0.0, 1.6, 3.1, 4.7)
+    )
+    pose = next(v for v in views if not eng.detectables_in_view(cam, v))  # a view with nobody in it
+    spot = pose.apply(np.array([[0.0, 0.0, 30.0]]))[0]  # 30 m ahead of the camera
+    eng.move_object(person.instance_id, float(spot[0]), float(spot[1]), None, 0.0)
+    assert eng.detectables_in_view(cam, pose)
+
+
 def test_noise_degrades_only_what_it_should_and_is_reproducible(engine_of) -> None:
     noisy = NoiseConfig(enabled=True, seed=11)
 

@@ -97,6 +97,8 @@ class BridgeEngine:
         self._pose_noise = PoseNoise(cfg.noise.pose)
         self._previous_position: npt.NDArray[np.float64] | None = None
         self._touching: set[int] = set()
+        # Bounding spheres (centres, radii) of the people and vehicles of the detection classes (rebuilt on a move).
+        self._spheres: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
         # Detection-only renders stop past the detection range plus the largest movable object:
         # nothing farther can hide or be an object whose centre is in range.
         largest_m = max((float(np.linalg.norm(o.size_m)) for o in self._objects.values()), default=0.0)
@@ -143,6 +145,7 @@ class BridgeEngine:
         self.collisions.set_object_pose(obj.instance_id, pose)
         moved = WorldObject(obj.instance_id, obj.object_class, obj.name, pose, obj.size_m)
         self._objects[obj.instance_id] = moved
+        self._spheres = None
         return moved
 
     # ------------------------------------------------------------------ per state
@@ -185,6 +188,9 @@ class BridgeEngine:
                     depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng)
             else:
                 det_cam = self._detection_cameras[name]
+                if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
+                    outputs.append(CameraOutput(cam, t_opt, None, None, []))
+                    continue
                 instance_id = self.renderer.render_instances(det_cam, t_opt)
             dets = None
             if name in det_cams:
@@ -201,6 +207,32 @@ class BridgeEngine:
         new = [c for c in contacts if c.instance_id not in self._touching]
         self._touching = touching
         return StepOutput(state, published, outputs, new, self.terrain_report(state, home))
+
+    def detectables_in_view(self, camera: CameraModel, t_map_optical: RigidTransform) -> bool:
+        """Whether any person or vehicle of the detection classes could be detected in this view: its bounding
+        sphere meets the camera's frustum (near and far planes included) and its centre is within the detection
+        range. False means no detection is possible, whatever the render would show."""
+        centers, radii = self._detectable_spheres()
+        if len(radii) == 0:
+            return False
+        in_range = np.linalg.norm(centers - t_map_optical.translation_m, axis=1) <= self.cfg.detections.max_range_m
+        if not in_range.any():
+            return False
+        p = t_map_optical.inverse().apply(centers[in_range])
+        r = radii[in_range]
+        planes = camera.frustum_planes_optical()
+        inside = np.all(p @ planes[:, :3].T + planes[:, 3] >= -r[:, None], axis=1) & (p[:, 2] <= camera.far_m + r)
+        return bool(inside.any())
+
+    def _detectable_spheres(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        if self._spheres is None:
+            wanted = self.cfg.detections.class_ids
+            objs = [o for o in self._objects.values() if o.object_class in wanted]
+            centers = np.array([o.center_m for o in objs], dtype=np.float64).reshape(-1, 3)
+            # half the box diagonal, plus a metre for whatever of a mesh pokes out of its box
+            radii = np.array([0.5 * float(np.linalg.norm(o.size_m)) + 1.0 for o in objs], dtype=np.float64)
+            self._spheres = (centers, radii)
+        return self._spheres
 
     def terrain_report(self, state: VehicleState, home: GeoPoint | None) -> TerrainReport | None:
         """The surface under the vehicle (terrain, road or roof at most a little above ``base_link``)."""
