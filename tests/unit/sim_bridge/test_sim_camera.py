@@ -120,6 +120,6 @@ def test_frustum_planes_contain_image_points() -> None:
     cam = CameraModel.simple(64, 48, 80.0)
     planes = cam.frustum_planes_optical()
     inside = cam.unproject([[0, 0], [63, 47], [32, 24]], [10, 10, 10])
-    outside = cam.unproject([[-20, 24], [32, 90]], [10, 10])
+    outside = cam.unproject([[-20, 24], [32, 90], [32, 24], [0, 0]], [10, 10, cam.far_m + 1.0, 0.4])  # far, near
     assert (inside @ planes[:, :3].T + planes[:, 3] >= -1e-9).all()
     assert ((outside @ planes[:, :3].T + planes[:, 3]) < 0).any(axis=1).all()

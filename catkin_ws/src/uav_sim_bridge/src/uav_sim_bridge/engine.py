@@ -221,7 +221,7 @@ class BridgeEngine:
         p = t_map_optical.inverse().apply(centers[in_range])
         r = radii[in_range]
         planes = camera.frustum_planes_optical()
-        inside = np.all(p @ planes[:, :3].T + planes[:, 3] >= -r[:, None], axis=1) & (p[:, 2] <= camera.far_m + r)
+        inside = np.all(p @ planes[:, :3].T + planes[:, 3] >= -r[:, None], axis=1)
         return bool(inside.any())
 
     def _detectable_spheres(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:

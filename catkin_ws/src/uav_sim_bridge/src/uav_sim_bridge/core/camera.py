@@ -218,7 +218,10 @@ class CameraModel:
         return grid
 
     def frustum_planes_optical(self) -> FloatArray:
-        """``(5, 4)`` inward plane equations ``n·p + d >= 0`` (left, right, top, bottom, near) in optical frame."""
+        """``(6, 4)`` inward plane equations ``n·p + d >= 0`` (left, right, top, bottom, near, far) in optical frame.
+
+        Near and far are planes at z-depth ``near_m`` and ``far_m``, as in the projection.
+        """
         left = (-0.5 - self.cx) / self.fx
         right = (self.width - 0.5 - self.cx) / self.fx
         top = (-0.5 - self.cy) / self.fy
@@ -230,10 +233,11 @@ class CameraModel:
                 [0.0, 1.0, -top],
                 [0.0, -1.0, bottom],
                 [0.0, 0.0, 1.0],
+                [0.0, 0.0, -1.0],
             ]
         )
         normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        d = np.array([0.0, 0.0, 0.0, 0.0, -self.near_m])
+        d = np.array([0.0, 0.0, 0.0, 0.0, -self.near_m, self.far_m])
         return np.concatenate([normals, d[:, None]], axis=1)
 
 

@@ -289,8 +289,7 @@ class Renderer:
         """Tiles whose bounding box intersects the view frustum, far plane (z-depth ``far_m``) included."""
         # The far plane is a plane, not a sphere: a tile farther than far_m from the eye can still hold points
         # whose z-depth is within it (off the optical axis), and they are drawn.
-        far_plane = np.array([[0.0, 0.0, -1.0, camera.far_m]])
-        planes = np.concatenate([camera.frustum_planes_optical(), far_plane])
+        planes = camera.frustum_planes_optical()
         rot = t_map_optical.rotation
         eye = t_map_optical.translation_m
         normals_w = planes[:, :3] @ rot.T
