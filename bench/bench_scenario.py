@@ -27,12 +27,16 @@ Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--re
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
 vary from run to run (2.2x-2.7x for the loiter on this shared 2-core VM, whose speed drifts by up to ~20 %):
 each scenario runs ``--repeats`` times, alternated, and the figures are the means, with every run's
-real-time factor in the notes.
+real-time factor in the notes. Before each run a fixed probe times a memory-bound numpy workload and a pure
+Python loop (best of 3): the notes give both, so figures from different times can be told apart from the
+machine's own drift (on this VM the numpy probe has varied by ~1.5x within an hour, with JSBSim's speed
+unchanged).
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import shutil
@@ -110,6 +114,28 @@ class CpuSampler:
         return out
 
 
+def machine_probe() -> tuple[float, float]:
+    """(memory-bound numpy ms, pure Python ms), best of 3: how fast the machine is right now."""
+    import numpy as np  # noqa: PLC0415 - only the probe needs it
+
+    a = np.ones(8_000_000, np.float32)
+    b = np.empty_like(a)
+    best_np = best_py = float("inf")
+    gc.collect()
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for _ in range(10):
+            np.multiply(a, 1.0001, out=b)
+            np.add(b, a, out=b)
+        best_np = min(best_np, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        total = 0
+        for k in range(1_000_000):
+            total += k & 7
+        best_py = min(best_py, time.perf_counter() - t0)
+    return 1000.0 * best_np, 1000.0 * best_py
+
+
 def _node_name(cmdline: bytes) -> str:
     args = [a.decode(errors="replace") for a in cmdline.split(b"\0") if a]
     for a in args:
@@ -161,6 +187,8 @@ class Runs:
     metrics: list[dict[str, Any]] = field(default_factory=list)
     pace: list[dict[str, float]] = field(default_factory=list)
     cpu: list[dict[str, float]] = field(default_factory=list)
+    #: machine_probe() before each run
+    probes: list[tuple[float, float]] = field(default_factory=list)
 
     def mean(self, value: Callable[[int], float]) -> float:
         return statistics.fmean(value(i) for i in range(len(self.metrics)))
@@ -170,6 +198,9 @@ class Runs:
 
     def rtfs(self) -> str:
         return ", ".join(f"{p['real_time_factor']:.2f}x" for p in self.pace)
+
+    def probe_notes(self) -> str:
+        return ", ".join(f"{n:.0f}/{py:.0f} ms" for n, py in self.probes)
 
     def sim_s(self, i: int) -> float:
         return float(self.metrics[i]["time"]["duration_s"])
@@ -206,6 +237,7 @@ def main() -> int:
     try:
         for i in range(args.repeats):
             for runs, scenario, name in ((loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")):
+                runs.probes.append(machine_probe())
                 metrics, pace, cpu = run(scenario, parent / f"{name}_{i}", args.sim_seconds)
                 runs.metrics.append(metrics)
                 runs.pace.append(pace)
@@ -217,6 +249,10 @@ def main() -> int:
         f"{args.sim_seconds:g} s simulated, lockstep, 2x 640x480 cameras, OctoMap 0.5 m; baseline lawnmower; "
         f"mean of {args.repeats} runs each (loiter {loiter.rtfs()}; lawnmower {mower.rtfs()})"
     )
+    probe = (
+        f"machine probe before each run, numpy/python (lower is faster): loiter {loiter.probe_notes()}; "
+        f"lawnmower {mower.probe_notes()}"
+    )
     rtf = loiter.rtf()
     record(
         "scenario.loiter.rtf",
@@ -225,7 +261,8 @@ def main() -> int:
         mower.rtf(),
         target=f">= {RTF_TARGET:g}",
         met=rtf >= RTF_TARGET,
-        notes=f"{notes}; last runs: {_flight(loiter.metrics[-1], 'loiter')}; {_flight(mower.metrics[-1], 'lawnmower')}",
+        notes=f"{notes}; last runs: {_flight(loiter.metrics[-1], 'loiter')}; "
+        f"{_flight(mower.metrics[-1], 'lawnmower')}; {probe}",
     )
     record(
         "scenario.loiter.clouds_dropped_pct",
@@ -242,7 +279,9 @@ def main() -> int:
         mower.cpu_per_sim_s(),
         target="<= 0.67 for 3x on 2 cores",
         met=cpu <= 2.0 / RTF_TARGET,
-        notes=f"{notes}; per node: " + ", ".join(f"{k} {v:.3f}" for k, v in loiter.per_node().items() if v >= 0.005),
+        notes=f"{notes}; per node: "
+        + ", ".join(f"{k} {v:.3f}" for k, v in loiter.per_node().items() if v >= 0.005)
+        + f"; {probe}",
     )
     record(
         "scenario.loiter.coverage_rate_m2_per_s",
