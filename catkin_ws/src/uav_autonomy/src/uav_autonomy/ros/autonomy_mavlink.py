@@ -184,9 +184,8 @@ class MavlinkLink:
                 break
             self._handle(msg, now_s, now_wall_s)
         st = self._st
-        heard = st.heartbeat_s is not None
-        last = st.heartbeat_s if heard else self._opened_s
-        last_wall = st.heartbeat_wall_s if heard else self._opened_wall_s
+        last = st.heartbeat_s if st.heartbeat_s is not None else self._opened_s
+        last_wall = st.heartbeat_wall_s if st.heartbeat_s is not None else self._opened_wall_s
         silent_wall = now_wall_s is None or last_wall is None or now_wall_s - last_wall >= self.wall_floor_s
         if now_s - last > self.reconnect_after_s and silent_wall:
             self.close()
