@@ -137,7 +137,23 @@ class TestDepthNodes(unittest.TestCase):
                 describe=f"{name} to advertise",
                 clock=time.monotonic,
             )
-        time.sleep(1.0)  # let the nodes' subscriptions connect
+        # Every subscription connected before the first frame: a frame (or its transform) published into a
+        # connection still being set up is lost, and the first frame must reach the estimators.
+        for pub, nodes in (
+            (cls.pub_tf, {"/depth_estimator"}),
+            (cls.pub_odom, {"/depth_estimator_odom"}),
+            (cls.pub_info, {"/depth_estimator", "/depth_estimator_odom"}),
+            (cls.pub_color, {"/depth_estimator", "/depth_estimator_odom"}),
+            (cls.pub_depth, {"/depth_evaluator"}),
+            (cls.pub_inst, {"/depth_evaluator"}),
+        ):
+            wait_until(
+                lambda p=pub: {c.endpoint_id for c in p.impl.connections},
+                lambda ids, n=nodes: n <= ids,
+                timeout_s=30.0,
+                describe=f"{sorted(nodes)} to subscribe to {pub.resolved_name}",
+                clock=time.monotonic,
+            )
         cls._play()
 
     @classmethod
@@ -180,6 +196,16 @@ class TestDepthNodes(unittest.TestCase):
             cls.pub_depth.publish(image_msg(depth.astype(np.float32), "32FC1", t))
             cls.pub_inst.publish(image_msg(inst.astype(np.uint16), "16UC1", t))
             cls.pub_color.publish(image_msg(rgb, "rgb8", t))
+            if k == 0:
+                # The first frame is processed on its own (a loaded machine could otherwise hand the worker the
+                # first two frames at once, and the first would only be remembered): it has no history.
+                wait_until(
+                    lambda: len(cls.collect["status"].snapshot()),
+                    lambda n: n >= 1,
+                    timeout_s=20.0,
+                    describe="the estimator's status for the first frame",
+                    clock=time.monotonic,
+                )
             time.sleep(1.0 / RATE_HZ)
             cls.now = t.to_sec() + 0.05
         cls.now = stamp(N_FRAMES).to_sec()
