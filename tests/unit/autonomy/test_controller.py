@@ -369,19 +369,9 @@ def test_a_simulation_running_ahead_of_its_messages_is_not_a_lost_link() -> None
     assert stopped == pytest.approx(silent + 5.0, abs=DT + 1e-9)
 
 
-def test_without_a_wall_clock_timeouts_are_in_simulated_time() -> None:
-    rig = Rig(position_timeout_s=1.0, wall_floor_s=0.5)
-    rig.airborne()
-    rig.ap.link_up = False
-    silent = rig.now
-    rig.run(2.0)
-    assert rig.ctl.state is ControllerState.IDLE
-    stopped = max(t for t, a in rig.log if isinstance(a, SendSetpoint))
-    assert stopped == pytest.approx(silent + 1.0, abs=DT + 1e-9)
-
-
-def test_at_real_time_the_wall_floor_changes_no_timeout() -> None:
-    rig = Rig(wall_per_tick_s=DT, position_timeout_s=1.0, wall_floor_s=0.5)
+@pytest.mark.parametrize("wall_per_tick_s", [None, DT], ids=["no wall clock", "real time"])
+def test_without_a_wall_clock_or_at_real_time_timeouts_are_unchanged(wall_per_tick_s: float | None) -> None:
+    rig = Rig(wall_per_tick_s=wall_per_tick_s, position_timeout_s=1.0, wall_floor_s=0.5)
     rig.airborne()
     rig.ap.link_up = False
     silent = rig.now
