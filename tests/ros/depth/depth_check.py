@@ -182,6 +182,17 @@ class TestDepthNodes(unittest.TestCase):
         return info
 
     @classmethod
+    def _wait_for(cls, name: str, count: int, describe: str) -> None:
+        """Until the collector ``name`` holds ``count`` messages (20 s)."""
+        wait_until(
+            lambda: len(cls.collect[name].snapshot()),
+            lambda n: n >= count,
+            timeout_s=20.0,
+            describe=describe,
+            clock=time.monotonic,
+        )
+
+    @classmethod
     def _play(cls) -> None:
         for k, (rgb, depth, inst) in enumerate(cls.frames):
             t = stamp(k)
@@ -202,23 +213,11 @@ class TestDepthNodes(unittest.TestCase):
             if k == 0:
                 # The first frame is processed on its own (a loaded machine could otherwise hand the worker the
                 # first two frames at once, and the first would only be remembered): it has no history.
-                wait_until(
-                    lambda: len(cls.collect["status"].snapshot()),
-                    lambda n: n >= 1,
-                    timeout_s=20.0,
-                    describe="the estimator's status for the first frame",
-                    clock=time.monotonic,
-                )
+                cls._wait_for("status", 1, "the estimator's status for the first frame")
             time.sleep(1.0 / RATE_HZ)
             cls.now = t.to_sec() + 0.05
         cls.now = stamp(N_FRAMES).to_sec()
-        wait_until(
-            lambda: len(cls.collect["metrics"].snapshot()),
-            lambda n: n >= 5,
-            timeout_s=20.0,
-            describe="5 depth metrics",
-            clock=time.monotonic,
-        )
+        cls._wait_for("metrics", 5, "5 depth metrics")
         time.sleep(1.0)
 
     def test_depth_images_are_32fc1_in_the_reference_camera(self) -> None:

@@ -142,6 +142,13 @@ class Rig:
             assert self.now < end, f"timed out; state {self.ctl.state}, events {self.ctl.pop_events()}"
             self.tick()
 
+    def flying_east(self) -> None:
+        """Airborne, AUTONOMOUS on a 100 m path east, 0.5 s into it."""
+        self.airborne()
+        self.ctl.request(ControllerState.AUTONOMOUS, self.now)
+        self.ctl.set_path([[0, 0, 10], [100, 0, 10]])
+        self.run(0.5)
+
     def airborne(self, height: float = 10.0) -> None:
         self.run(0.2)
         self.ctl.request(ControllerState.TAKEOFF, self.now)
@@ -318,10 +325,7 @@ def test_pilot_mode_change_yields_to_idle() -> None:
 
 def test_link_drop_stops_setpoints_and_reconnect_sends_nothing_stale() -> None:
     rig = Rig(link_timeout_s=0.5)
-    rig.airborne()
-    rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)
-    rig.ctl.set_path([[0, 0, 10], [100, 0, 10]])
-    rig.run(0.5)
+    rig.flying_east()
     rig.ap.link_up = False
     drop = rig.now
     rig.run(2.0)
@@ -344,10 +348,7 @@ def test_a_simulation_running_ahead_of_its_messages_is_not_a_lost_link() -> None
     # 10x real time; the autopilot's messages stop arriving for 2.5 simulated seconds (0.25 wall s: a router
     # or this process starved of CPU), longer than both timeouts: the controller keeps flying.
     rig = Rig(wall_per_tick_s=DT / 10, link_timeout_s=2.0, position_timeout_s=1.0, wall_floor_s=0.5)
-    rig.airborne()
-    rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)
-    rig.ctl.set_path([[0, 0, 10], [100, 0, 10]])
-    rig.run(0.5)
+    rig.flying_east()
     rig.ap.link_up = False
     silent = rig.now
     rig.run(2.5)
