@@ -33,6 +33,21 @@ def test_rate_schedule_fires_on_the_sim_time_grid() -> None:
         RateSchedule(0.0)
 
 
+def test_a_camera_on_the_state_grid_misses_no_frame_over_a_long_run() -> None:
+    # The SITL steps JSBSim at 250 Hz and stamps a state every 5 steps with sim_time_us(steps * dt). steps * dt
+    # in floating point can land a hair below the instant (8.2 s became 8199999 us when truncated), and a 10 Hz
+    # camera then skipped that frame: about one frame in a hundred, seen as gaps in recorded bags.
+    from sitl.shell.encode import sim_time_us  # noqa: PLC0415  (the other end of the sim link)
+
+    cam = RateSchedule(10.0)
+    stamps_us = [sim_time_us(steps * 0.004) for steps in range(0, 250 * 600 + 1, 5)]  # 10 min, 50 Hz
+    assert stamps_us == [steps * 4000 for steps in range(0, 250 * 600 + 1, 5)]
+    states = [state_from_odometry(us, (0.0, 0.0, 0.0), [1.0, 0.0, 0.0, 0.0], (0, 0, 0), (0, 0, 0)) for us in stamps_us]
+    frames = [s.sim_time_s for s in states if cam.due(s.sim_time_s)]
+    assert len(frames) == 10 * 600 + 1
+    assert np.diff(frames) == pytest.approx(0.1)
+
+
 def test_state_from_odometry_converts_ned_frd_to_enu_flu() -> None:
     yaw_ned = math.radians(30.0)  # 30 deg east of north
     q = [math.cos(yaw_ned / 2), 0.0, 0.0, math.sin(yaw_ned / 2)]

@@ -35,6 +35,13 @@ def test_image_round_trip(array: np.ndarray, encoding: str) -> None:
     assert msg.header.stamp.to_sec() == 1.5
 
 
+@pytest.mark.parametrize(("sim_time_s", "secs", "nsecs"), [(8.1, 8, 100_000_000), (68.9, 68, 900_000_000), (0.0, 0, 0)])
+def test_stamps_are_the_nearest_nanosecond(sim_time_s: float, secs: int, nsecs: int) -> None:
+    # rospy.Time.from_sec truncates (8.1 -> 8.099999999): a bag's stamps then read one nanosecond early.
+    t = conv.stamp(sim_time_s)
+    assert (t.secs, t.nsecs) == (secs, nsecs)
+
+
 def test_image_shape_must_fit_encoding() -> None:
     with pytest.raises(ValueError, match="does not fit"):
         conv.numpy_to_image(np.zeros((2, 2), np.uint8), "rgb8", Header())

@@ -14,7 +14,7 @@ from unit.sitl.sitl_builders import make_vehicle, take_off
 from sitl.core.protocol import MsgId
 from sitl.core.telemetry import PRODUCIBLE
 from sitl.errors import LinkError
-from sitl.shell.encode import Encoder
+from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import frame_v2, load_signing_key, mavlink
 
 
@@ -35,6 +35,19 @@ def test_every_telemetry_message_frames_like_pymavlink() -> None:
     for seq, msg in enumerate(msgs):
         assert frame_v2(msg, seq, 1, 1) == reference(msg, seq, 1, 1), msg.get_type()
     assert {m.get_type() for m in msgs} >= {x.name for x in MsgId if x in PRODUCIBLE}
+
+
+def test_messages_are_stamped_on_the_exact_step() -> None:
+    # steps * dt lands a hair below some instants (2050 * 0.004 s * 1e6 = 8199999.999...): truncated, the state
+    # of 8.2 s was stamped 8199999 us, and a 10 Hz camera on the bridge skipped that frame.
+    v = make_vehicle()
+    enc = Encoder(v, unix_epoch_s=1.7e9, system_id=1)
+    for _ in range(2050):
+        v.step(v.t_s)
+    assert v.t_s * 1e6 < 8_200_000  # the floating-point instant is below the step...
+    assert enc.odometry(truth=True).time_usec == 8_200_000  # ... its stamp is not
+    assert enc.time_boot_ms == 8200
+    assert sim_time_us(v.t_s) == v.steps * 4000
 
 
 @given(

@@ -73,6 +73,13 @@ def statustext_chunks(text: str, chunk_id: int) -> list[tuple[bytes, int, int]]:
     return [(piece, chunk_id, i) for i, piece in enumerate(pieces)]
 
 
+def sim_time_us(t_s: float) -> int:
+    """Simulation time in whole microseconds, rounded: ``steps * dt`` in floating point can land a hair
+    below the instant (2050 * 0.004 = 8.199999999999999), and truncating it would stamp the state 1 us early
+    (a 10 Hz camera on the grid k / 10 then skipped a frame now and then)."""
+    return round(t_s * 1e6)
+
+
 def _isa_pressure_hpa(alt_amsl_m: float) -> float:
     return float(1013.25 * max(0.0, 1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588)
 
@@ -102,11 +109,11 @@ class Encoder:
 
     @property
     def time_boot_ms(self) -> int:
-        return int(self.v.t_s * 1000.0) & 0xFFFFFFFF
+        return (sim_time_us(self.v.t_s) // 1000) & 0xFFFFFFFF
 
     @property
     def time_usec(self) -> int:
-        return int(self.v.t_s * 1e6)
+        return sim_time_us(self.v.t_s)
 
     def build(self, msg_id: int) -> Any | None:
         """The message for a stream or a REQUEST_MESSAGE; ``None`` if it cannot be produced."""
@@ -169,7 +176,7 @@ class Encoder:
         return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
 
     def system_time(self) -> Any:
-        unix_us = int((self.unix_epoch_s + self.v.t_s) * 1e6)
+        unix_us = round(self.unix_epoch_s * 1e6) + sim_time_us(self.v.t_s)
         return self.factory.system_time_encode(unix_us, self.time_boot_ms)
 
     def gps_global_origin(self) -> Any:
@@ -344,7 +351,7 @@ class Encoder:
         bz = 2 * (x * z + w * y) * vn + 2 * (y * z - w * x) * ve + (1 - 2 * (x * x + y * y)) * vd
         unknown = [math.nan] + [0.0] * 20
         return self.factory.odometry_encode(
-            int(s.t_s * 1e6),
+            sim_time_us(s.t_s),
             mavlink.MAV_FRAME_LOCAL_NED,
             mavlink.MAV_FRAME_BODY_FRD,
             *pos,

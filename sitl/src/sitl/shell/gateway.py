@@ -30,7 +30,7 @@ from sitl.core.offboard import OffboardRejection, setpoint_from_global_int, setp
 from sitl.core.params import decode_wire_value
 from sitl.core.protocol import MavMissionResult, MavResult, MavSeverity, MsgId
 from sitl.core.telemetry import NORMAL_RATES_HZ, ONBOARD_RATES_HZ, StreamScheduler
-from sitl.shell.encode import Encoder
+from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import MavLink, Received, mavlink
 from sitl.vehicle import Vehicle
 
@@ -390,7 +390,7 @@ class Gateway:
     # ------------------------------------------------------------------ small services
     def _on_timesync(self, msg: Any, route: Hashable, wall_s: float) -> None:
         if msg.tc1 == 0:
-            now_ns = int(self.v.t_s * 1e9)
+            now_ns = sim_time_us(self.v.t_s) * 1000
             self.send_to(route, self.encoder.factory.timesync_encode(now_ns, msg.ts1))
 
     def _on_ping(self, msg: Any, route: Hashable, wall_s: float) -> None:

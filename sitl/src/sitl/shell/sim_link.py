@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sitl.core.protocol import SIM_STEP, MavResult
-from sitl.shell.encode import Encoder
+from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import LinkStats, MavLink, bind_error
 from sitl.vehicle import Vehicle
 
@@ -202,7 +202,7 @@ class SimLink:
         ax, ay, az = s.specific_force_frd_mps2
         speed_cms = round(math.sqrt(vn * vn + ve * ve + vd * vd) * 100.0)
         hil = f.hil_state_quaternion_encode(
-            int(s.t_s * 1e6),
+            sim_time_us(s.t_s),
             list(s.q_wxyz),
             *s.rates_frd_radps,
             round(s.lat_deg * 1e7),
@@ -220,7 +220,7 @@ class SimLink:
         ap = v.autopilot
         controls = [*v.duty, *([0.0] * 12)]
         act = f.hil_actuator_controls_encode(
-            int(s.t_s * 1e6), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
+            sim_time_us(s.t_s), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
         )
         # the three messages of one instant share a datagram (a MAVLink parser reads them in turn)
         frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))

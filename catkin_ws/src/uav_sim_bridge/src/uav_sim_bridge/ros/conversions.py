@@ -44,7 +44,10 @@ _ENCODINGS: dict[str, tuple[str, int]] = {
 
 
 def stamp(sim_time_s: float) -> rospy.Time:
-    return rospy.Time.from_sec(max(0.0, sim_time_s))
+    """The ROS time of a simulation instant, to the nearest nanosecond (``rospy.Time.from_sec`` truncates:
+    8.1 s would be stamped 8.099999999)."""
+    ns = round(max(0.0, sim_time_s) * 1e9)
+    return rospy.Time(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
 def header(sim_time_s: float, frame_id: str) -> Header:
