@@ -129,8 +129,26 @@ def replay(run_dir: Path, out_dir: Path) -> None:
     assert (out_dir / "metrics.json").is_file(), proc.tail()
 
 
+def map_input_stamps(bag_path: Path) -> dict[str, list[int]]:
+    """Header stamps (ns) of the nadir camera's depth, colour and camera_info messages in a bag."""
+    import rosbag  # noqa: PLC0415
+
+    topics = [f"/cameras/nadir/{t}" for t in ("depth/image_raw", "color/image_raw", "depth/camera_info")]
+    stamps: dict[str, list[int]] = {t: [] for t in topics}
+    with rosbag.Bag(str(bag_path)) as bag:
+        for topic, msg, _t in bag.read_messages(topics=topics):
+            stamps[topic].append(msg.header.stamp.to_nsec())
+    return {t: sorted(v) for t, v in stamps.items()}
+
+
 def test_replay_reproduces_the_live_metrics() -> None:
     run_dir, _ = uav_run(HERE / "small_loiter.yaml", "replay_live", "--time-limit", "25")
+    # the bag holds every frame of the map camera (10 Hz): all three topics, one per 0.1 s, stamps exact
+    stamps = map_input_stamps(run_dir / "run.bag")
+    assert len({tuple(v) for v in stamps.values()}) == 1, {k: len(v) for k, v in stamps.items()}
+    frames_ns = next(iter(stamps.values()))
+    assert len(frames_ns) > 200
+    assert {b - a for a, b in zip(frames_ns, frames_ns[1:], strict=False)} == {100_000_000}
     out_dir = run_dir / "replay"
     replay(run_dir, out_dir)
     live, again = flat(metrics(run_dir)), flat(metrics(out_dir))

@@ -19,8 +19,9 @@ Parameters:
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
-    recorded topic that has a publisher (plus a wall second to connect, except in deterministic runs), so the
-    bag holds the whole run (a replay needs it);
+    recorded topic that has a publisher and is connected to each of them (asked through the nodes'
+    ``getBusInfo``; in deterministic runs the bridge holds simulation time instead), so the bag holds the
+    whole run (a replay needs it);
     ``~run/person`` (dict, from ``scenario_params``): the person of interest ``{name, instance_id, x_m, y_m}``;
     ``~shutdown_on_stop`` (bool, default true): exit once the scorer has published its final metrics
     (``"final": true`` in ``summary_json``), at least ``~linger_s`` (float, 1.0) and at most
@@ -60,12 +61,13 @@ from uav_autonomy.core.scenario_world import load_world
 from uav_autonomy.core.scoring_convert import detections_from_msg
 from uav_autonomy.ros.scoring_msgs import status_msg
 from uav_common.config import ConfigError
+from uav_common.graph import bus_info_over_xmlrpc, unconnected_subscriptions
 from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioStatus, SimState
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest
 
 FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
-#: Wall seconds between the recorder subscribing to every topic and the run starting (connection set-up).
-RECORDER_CONNECT_S = 1.0
+#: The node name of the scenario's ``rosbag record`` (scenario_common.launch).
+RECORDER = "/record"
 
 
 class MissionManager:
@@ -109,7 +111,6 @@ class MissionManager:
         self.flight_requested = False
         self.hold_requested = False
         self.wait_for_recorder = False
-        self.recorder_ready_wall_s: float | None = None
         self.resumes = 0
         self.max_resumes = 10
         self.last_resume_wall = -math.inf
@@ -254,27 +255,43 @@ class MissionManager:
                 rospy.signal_shutdown(f"scenario stopped: {self.stop_reason.value if self.stop_reason else ''}")
 
     def _recorder_listening(self) -> bool:
-        """Is ``/record`` (rosbag) subscribed to every recorded topic that has a publisher, and has it had a
-        second to connect? Then the bag holds the run from its first message (a replay needs that)."""
+        """Is ``/record`` (rosbag) subscribed to every recorded topic that has a publisher, and connected to
+        each publisher? Then the bag holds the run from its first message (a replay needs that)."""
         import rosgraph  # noqa: PLC0415
 
+        master = rosgraph.Master(rospy.get_name())
         try:
-            pubs, subs, _srvs = rosgraph.Master(rospy.get_name()).getSystemState()
+            pubs, subs, _srvs = master.getSystemState()
         except (rosgraph.MasterError, OSError):
             return False
         published = {topic for topic, _nodes in pubs}
-        recording = {topic for topic, nodes in subs if "/record" in nodes}
+        recording = {topic for topic, nodes in subs if RECORDER in nodes}
         wanted = set(recorded_topics(self.scenario)) & published
         if "/scenario/status" not in recording or not wanted <= recording:
-            self.recorder_ready_wall_s = None
             return False
         if self.scenario.time.deterministic:
-            # No wall-clock wait: it would make the start step depend on the machine. The bridge starts
-            # simulation time only once /record is up and grants each step only when the run is idle.
+            # The bridge starts simulation time only once /record is up and grants each step only when the
+            # run is idle; asking the nodes here would make the start step depend on the machine.
             return True
-        if self.recorder_ready_wall_s is None:  # subscribed; the TCP connections follow within a moment
-            self.recorder_ready_wall_s = time.monotonic()
-        return time.monotonic() - self.recorder_ready_wall_s >= RECORDER_CONNECT_S
+
+        def uri(node: str) -> str:
+            try:
+                return str(master.lookupNode(node)).rstrip("/")
+            except (rosgraph.MasterError, OSError):
+                return node
+
+        # Subscribed is not connected: each publisher is connected to a moment later (seconds, on a busy machine).
+        unconnected = unconnected_subscriptions(
+            pubs,
+            subs,
+            subscriber_nodes={RECORDER},
+            topics=wanted,
+            bus_info=bus_info_over_xmlrpc(rospy.get_name(), uri),
+            node_uri=uri,
+        )
+        if unconnected:
+            rospy.loginfo_throttle(10.0, f"mission_manager: rosbag record not yet connected: {unconnected[:3]}")
+        return not unconnected
 
     def _resume_if_yielded(self, ctrl: ControllerState | None) -> None:
         if ctrl is None or not resume_needed(

@@ -62,6 +62,7 @@ from visualization_msgs.msg import Marker
 
 from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
 from uav_common.geo import GeoPoint
+from uav_common.graph import bus_info_over_xmlrpc, unconnected_subscriptions
 from uav_common.pointcloud import DepthImagePacker
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
@@ -231,16 +232,17 @@ class SimBridgeNode:
         self.tf = tf2_ros.TransformBroadcaster()
         self.tf_static = tf2_ros.StaticTransformBroadcaster()
         self.cam_pubs: dict[str, _CameraPubs] = {}
+        q = self.cfg.publish.queue_size  # a recorder must not lose frames: see PublishConfig.queue_size
         for name in self.engine.cameras:
             ns = f"/cameras/{name}"
             self.cam_pubs[name] = _CameraPubs(
-                color=rospy.Publisher(f"{ns}/color/image_raw", Image, queue_size=2),
-                color_info=rospy.Publisher(f"{ns}/color/camera_info", CameraInfo, queue_size=2),
-                depth=rospy.Publisher(f"{ns}/depth/image_raw", Image, queue_size=2),
-                depth_info=rospy.Publisher(f"{ns}/depth/camera_info", CameraInfo, queue_size=2),
-                instance=rospy.Publisher(f"{ns}/instance/image_raw", Image, queue_size=2),
-                klass=rospy.Publisher(f"{ns}/class/image_color", Image, queue_size=2),
-                points=rospy.Publisher(f"{ns}/points", PointCloud2, queue_size=2),
+                color=rospy.Publisher(f"{ns}/color/image_raw", Image, queue_size=q),
+                color_info=rospy.Publisher(f"{ns}/color/camera_info", CameraInfo, queue_size=q),
+                depth=rospy.Publisher(f"{ns}/depth/image_raw", Image, queue_size=q),
+                depth_info=rospy.Publisher(f"{ns}/depth/camera_info", CameraInfo, queue_size=q),
+                instance=rospy.Publisher(f"{ns}/instance/image_raw", Image, queue_size=q),
+                klass=rospy.Publisher(f"{ns}/class/image_color", Image, queue_size=q),
+                points=rospy.Publisher(f"{ns}/points", PointCloud2, queue_size=q),
             )
         if self.cfg.publish.world_mesh_marker:
             self.pub_mesh = rospy.Publisher("/sim/world_mesh", Marker, queue_size=1, latch=True)
@@ -420,10 +422,7 @@ class SimBridgeNode:
         timer created late has another phase, at moments that depend on scheduling; so the first grant
         waits for the whole graph.
         """
-        import xmlrpc.client  # noqa: PLC0415
-
         watched = set(self._settle_nodes) | {rospy.get_name()}
-        pending: list[str] = []
         uris: dict[str, str] = {}
 
         def uri(node: str) -> str:
@@ -431,6 +430,14 @@ class SimBridgeNode:
                 uris[node] = str(master.lookupNode(node)).rstrip("/")
             return uris[node]
 
+        def uri_or_name(node: str) -> str:
+            try:
+                return uri(node)
+            except (rosgraph.MasterError, OSError):
+                return node
+
+        bus_info = bus_info_over_xmlrpc(rospy.get_name(), uri)
+        pending: list[str] = []
         last_state: Any = None
         stable_since = time.monotonic()
         while time.monotonic() < deadline and not rospy.is_shutdown():
@@ -438,24 +445,10 @@ class SimBridgeNode:
             pubs, subs, _srvs = state
             if state != last_state:
                 last_state, stable_since = state, time.monotonic()
-            publishers = {topic: set(nodes) for topic, nodes in pubs}
             pending = [] if time.monotonic() - stable_since >= 1.0 else ["(the ROS graph is still changing)"]
-            for topic, nodes in subs:
-                for sub in nodes:
-                    if sub not in watched:
-                        continue
-                    want = {n for n in publishers.get(topic, set()) if n in watched}
-                    if not want:
-                        continue
-                    try:
-                        reply: Any = xmlrpc.client.ServerProxy(uri(sub)).getBusInfo(rospy.get_name())
-                        info: list[Any] = list(reply[2])
-                        # the other end is a node name (roscpp) or its XML-RPC URI (rospy)
-                        have = {str(c[1]).rstrip("/") for c in info if c[2] == "i" and c[4] == topic and c[5]}
-                        missing = [n for n in sorted(want) if n not in have and uri(n) not in have]
-                    except (OSError, rosgraph.MasterError, xmlrpc.client.Error):
-                        missing = ["?"]
-                    pending += [f"{sub} {topic} <- {n}" for n in missing]
+            pending += unconnected_subscriptions(
+                pubs, subs, subscriber_nodes=watched, publisher_nodes=watched, bus_info=bus_info, node_uri=uri_or_name
+            )
             if not pending:
                 return []
             time.sleep(0.1)
