@@ -84,10 +84,17 @@ class PublishConfig:
     points: bool = True
     points_stride: int = 1
     world_mesh_marker: bool = True
+    #: Camera topics: messages each subscriber connection may fall behind before its oldest is dropped.
+    #: rospy writes every connection from its own thread; a recorder whose writer thread waits for the GIL
+    #: while a frame renders needs room for a few frames, or the bag silently lacks some.
+    queue_size: int = 10
 
     def __post_init__(self) -> None:
         if self.points_stride < 1:
             msg = "points_stride must be >= 1"
+            raise ValueError(msg)
+        if self.queue_size < 1:
+            msg = "queue_size must be >= 1"
             raise ValueError(msg)
 
 
