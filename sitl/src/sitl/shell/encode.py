@@ -74,9 +74,9 @@ def statustext_chunks(text: str, chunk_id: int) -> list[tuple[bytes, int, int]]:
 
 
 def sim_time_us(t_s: float) -> int:
-    """Simulation time in whole microseconds, rounded: ``steps * dt`` in floating point can land a hair
-    below the instant (2050 * 0.004 = 8.199999999999999), and truncating it would stamp the state 1 us early
-    (a 10 Hz camera on the grid k / 10 then skipped a frame now and then)."""
+    """Simulation time in whole microseconds, rounded: ``steps * dt * 1e6`` in floating point can land a
+    hair below the instant (2050 * 0.004 * 1e6 = 8199999.999999999), and truncating it would stamp the state
+    1 us early (a 10 Hz camera on the grid k / 10 then skipped a frame now and then)."""
     return round(t_s * 1e6)
 
 
