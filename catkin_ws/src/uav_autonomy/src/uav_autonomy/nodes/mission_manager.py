@@ -61,7 +61,7 @@ from uav_autonomy.core.scenario_world import load_world
 from uav_autonomy.core.scoring_convert import detections_from_msg
 from uav_autonomy.ros.scoring_msgs import status_msg
 from uav_common.config import ConfigError
-from uav_common.graph import bus_info_over_xmlrpc, unconnected_subscriptions
+from uav_common.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioStatus, SimState
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest
 
@@ -274,12 +274,7 @@ class MissionManager:
             # run is idle; asking the nodes here would make the start step depend on the machine.
             return True
 
-        def uri(node: str) -> str:
-            try:
-                return str(master.lookupNode(node)).rstrip("/")
-            except (rosgraph.MasterError, OSError):
-                return node
-
+        uri = node_uri_lookup(master.lookupNode)
         # Subscribed is not connected: each publisher is connected to a moment later (seconds, on a busy machine).
         unconnected = unconnected_subscriptions(
             pubs,

@@ -62,7 +62,7 @@ from visualization_msgs.msg import Marker
 
 from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
 from uav_common.geo import GeoPoint
-from uav_common.graph import bus_info_over_xmlrpc, unconnected_subscriptions
+from uav_common.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_common.pointcloud import DepthImagePacker
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
@@ -423,19 +423,7 @@ class SimBridgeNode:
         waits for the whole graph.
         """
         watched = set(self._settle_nodes) | {rospy.get_name()}
-        uris: dict[str, str] = {}
-
-        def uri(node: str) -> str:
-            if node not in uris:
-                uris[node] = str(master.lookupNode(node)).rstrip("/")
-            return uris[node]
-
-        def uri_or_name(node: str) -> str:
-            try:
-                return uri(node)
-            except (rosgraph.MasterError, OSError):
-                return node
-
+        uri = node_uri_lookup(master.lookupNode)
         bus_info = bus_info_over_xmlrpc(rospy.get_name(), uri)
         pending: list[str] = []
         last_state: Any = None
@@ -447,7 +435,7 @@ class SimBridgeNode:
                 last_state, stable_since = state, time.monotonic()
             pending = [] if time.monotonic() - stable_since >= 1.0 else ["(the ROS graph is still changing)"]
             pending += unconnected_subscriptions(
-                pubs, subs, subscriber_nodes=watched, publisher_nodes=watched, bus_info=bus_info, node_uri=uri_or_name
+                pubs, subs, subscriber_nodes=watched, publisher_nodes=watched, bus_info=bus_info, node_uri=uri
             )
             if not pending:
                 return []
