@@ -19,8 +19,8 @@ Parameters:
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
-    recorded topic that has a publisher and is connected to each of them (asked through the nodes'
-    ``getBusInfo``; in deterministic runs the bridge holds simulation time instead), so the bag holds the
+    recorded topic that has a publisher and is connected to each of them (both ends' ``getBusInfo`` list the
+    link; in deterministic runs the bridge holds simulation time instead), so the bag holds the
     whole run (a replay needs it);
     ``~run/person`` (dict, from ``scenario_params``): the person of interest ``{name, instance_id, x_m, y_m}``;
     ``~shutdown_on_stop`` (bool, default true): exit once the scorer has published its final metrics
