@@ -26,6 +26,15 @@ def test_same_seed_same_world_other_seed_other_world(small_world: World) -> None
     assert other.hash != small_world.hash
 
 
+def test_a_world_without_forest_or_hills_has_finite_colours(flat_world: World) -> None:
+    """forest.coverage 0 and hill_height_m 0 are valid settings; they once gave NaN (black) terrain."""
+    colors = flat_world.mesh.colors
+    assert np.isfinite(colors).all()
+    assert colors.min() >= 0.0
+    assert colors.max() <= 1.0
+    assert colors[:, 1].mean() > 0.2  # a green meadow, not black
+
+
 def test_default_world_content(default_world: World) -> None:
     counts = {c: len(default_world.objects_of_class(c)) for c in ObjectClass if c is not ObjectClass.SKY}
     assert counts[ObjectClass.TERRAIN] == 1

@@ -571,7 +571,10 @@ def _terrain_colors(
         amount = (1 - smoothstep(160.0, 260.0, r)) * (1 - smoothstep(0.12, 0.22, slope)) * ((cell % 5) != 0)
         col = col * (1 - amount[..., None]) + pick * amount[..., None]
     floor = np.array([0.20, 0.28, 0.13])
-    f_amt = smoothstep(forest_thr - 0.15, forest_thr + 0.05, forest_density)
+    if math.isfinite(forest_thr):
+        f_amt = smoothstep(forest_thr - 0.15, forest_thr + 0.05, forest_density)
+    else:  # no forest (coverage 0): the ramp between two infinite edges would be NaN, i.e. black terrain
+        f_amt = np.zeros_like(forest_density)
     col = col * (1 - 0.8 * f_amt[..., None]) + floor * 0.8 * f_amt[..., None]
     rock = np.array([0.50, 0.47, 0.43])
     r_amt = smoothstep(0.7, 1.1, slope) * (0.5 + 0.5 * var)

@@ -55,7 +55,7 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 # Bump when the generator's output changes for the same config (invalidates caches).
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3  # 3: worlds without forest have finite terrain colours
 _FILES = ("world.npz", "objects.json", "meta.json")
 
 
