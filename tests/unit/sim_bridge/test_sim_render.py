@@ -251,3 +251,34 @@ def test_save_pngs_for_people(default_world: World, default_renderer: Renderer, 
     assert (f.instance_id > 0).mean() > 0.3
     assert len(list(artifacts.glob("*.png"))) == 4 * 2 * 4 + 1
     assert math.isfinite(float(np.nanmean(f.depth_m)))
+
+
+@pytest.mark.parametrize("eye_xy", [(0.0, 0.0), (-9.0, 6.0), (8.0, -7.0)])
+def test_the_landing_pad_is_painted_at_home_and_nowhere_else(
+    flat_renderer: Renderer, eye_xy: tuple[float, float]
+) -> None:
+    """Only the tiles touching the pad are drawn with the pad shader: the H, the ring and the concrete must still
+    appear exactly around home, seen from straight above or from the side, and the grass beyond must not."""
+    pose = NADIR.optical_pose(RigidTransform.from_rpy([eye_xy[0], eye_xy[1], 40.0], yaw_rad=0.3))
+    frame = flat_renderer.render(NADIR, pose)
+    half = flat_renderer.settings.pad_half_size_m
+    # map points on the ground (z = 0): the H's middle bar, its ring, the concrete's corner, and grass outside
+    points = {
+        "bar": (0.0, 0.0),
+        "ring": (0.72 * half, 0.0),
+        "concrete": (-0.9 * half, 0.9 * half),
+        "grass": (1.6 * half, -1.6 * half),
+    }
+    colour = {}
+    for name, (x, y) in points.items():
+        uv, _ = NADIR.project(pose.inverse().apply(np.array([[x, y, 0.0]])))
+        col, row = np.rint(uv[0]).astype(int)
+        colour[name] = frame.color_rgb[row, col].astype(int)
+    r, g, b = colour["ring"]
+    assert min(r, g) > 90, colour  # yellow paint
+    assert b < 0.5 * r, colour
+    assert np.ptp(colour["concrete"]) < 25, colour  # grey
+    assert np.ptp(colour["bar"]) < 25, colour  # white paint: grey, and brighter than the concrete
+    assert colour["bar"].min() > colour["concrete"].max() + 10, colour
+    r, g, b = colour["grass"]
+    assert g > b + 15, colour  # the flat world's grass, no pad

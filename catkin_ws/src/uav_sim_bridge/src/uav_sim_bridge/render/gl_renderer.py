@@ -16,12 +16,15 @@ renderer; calling it from another thread raises :class:`RenderError`.  Never
 
 Speed: static triangles are sorted into square tiles; each frame a vectorised
 frustum test picks the tiles to draw and tiles beyond ``lod_distance_m`` draw the
-low-detail tree crowns instead of the full ones (one indirect draw call for all).
+low-detail tree crowns instead of the full ones (indirect draw calls, front to back).
+Only the tiles that touch the landing pad use the shader variant that paints it, and
+the sky pass runs only when some pixel has no surface (a nadir camera rarely sees sky).
 People and vehicles live in a small dynamic buffer so they can be moved.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 from dataclasses import dataclass
@@ -140,15 +143,18 @@ class Renderer:
         ctx = self.ctx
         s = self.settings
         self.prog: Any = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=shaders.MAIN_FS)
+        pad_fs = shaders.with_defines(shaders.MAIN_FS, "PAD")
+        self.prog_pad: Any = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=pad_fs)
         self.sky: Any = ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=shaders.SKY_FS)
         sun = s.sun_direction
         haze = (0.74, 0.80, 0.88)
-        self.prog["u_sun"].value = sun
-        self.prog["u_texture_gain"].value = s.texture_gain
-        self.prog["u_haze_m"].value = s.haze_distance_m
-        self.prog["u_pad_half_m"].value = s.pad_half_size_m
-        self.prog["u_pad_instance"].value = TERRAIN_INSTANCE_ID
-        self.prog["u_haze_color"].value = haze
+        for prog in (self.prog, self.prog_pad):
+            prog["u_sun"].value = sun
+            prog["u_texture_gain"].value = s.texture_gain
+            prog["u_haze_m"].value = s.haze_distance_m
+            prog["u_haze_color"].value = haze
+        self.prog_pad["u_pad_half_m"].value = s.pad_half_size_m
+        self.prog_pad["u_pad_instance"].value = TERRAIN_INSTANCE_ID
         self.sky["u_sun"].value = sun
         self.sky["u_haze_color"].value = haze
         tri = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], dtype="f4").tobytes())
@@ -161,11 +167,13 @@ class Renderer:
         rec["p"], rec["n"], rec["c"], rec["i"] = verts, normals, colors, inst
         return rec.tobytes()
 
+    def _shaded_vao(self, prog: Any, vbo: Any, ibo: Any) -> Any:
+        return self.ctx.vertex_array(prog, [(vbo, "3f 3f 3f 1u", "in_pos", "in_nrm", "in_col", "in_inst")], ibo)
+
     def _make_vaos(self, vbo: Any, ibo: Any) -> tuple[Any, Any]:
         """(shaded, instance-only) vertex arrays over one vertex buffer."""
-        shaded = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 3f 1u", "in_pos", "in_nrm", "in_col", "in_inst")], ibo)
         instance = self.ctx.vertex_array(self.iprog, [(vbo, "3f 24x 1u", "in_pos", "in_inst")], ibo)
-        return shaded, instance
+        return self._shaded_vao(self.prog, vbo, ibo), instance
 
     def _upload_static(self) -> None:
         w = self.world
@@ -208,11 +216,15 @@ class Renderer:
         self._tile_center = (lo + hi) / 2.0
         self._tile_extent = (hi - lo) / 2.0
         self._tile_nonempty = ~empty
+        # Tiles whose box reaches into the landing pad's square around home (drawn with the PAD shader).
+        half = self.settings.pad_half_size_m
+        self._tile_pad = np.all(np.abs(self._tile_center[:, :2]) - self._tile_extent[:, :2] <= half, axis=1)
         self.static_triangles = len(faces)
         ctx = self.ctx
         self._static_vbo = ctx.buffer(self._vertex_bytes(m.vertices_m, m.normals, m.colors, m.vertex_instance))
         self._static_ibo = ctx.buffer(faces.astype("<u4").tobytes())
         self._static_vao, self._static_ivao = self._make_vaos(self._static_vbo, self._static_ibo)
+        self._static_pad_vao = self._shaded_vao(self.prog_pad, self._static_vbo, self._static_ibo)
         self._indirect = ctx.buffer(reserve=max(1, n_tiles) * 20, dynamic=True)
 
     def _upload_dynamic(self) -> None:
@@ -299,7 +311,10 @@ class Renderer:
         inside = np.all(dist >= 0.0, axis=1)
         return np.asarray(inside & self._tile_nonempty, dtype=np.bool_)
 
-    def _draw_commands(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint32]:
+    def _draw_commands(
+        self, camera: CameraModel, t_map_optical: RigidTransform
+    ) -> tuple[npt.NDArray[np.uint32], npt.NDArray[np.bool_]]:
+        """Indirect draw commands of the visible tiles, front to back, and whether each tile touches the pad."""
         if self.settings.frustum_culling:
             vis = np.flatnonzero(self.visible_tiles(camera, t_map_optical))
         else:
@@ -316,7 +331,7 @@ class Renderer:
         cmds[:, 0] = count[keep]
         cmds[:, 1] = 1
         cmds[:, 2] = first[keep]
-        return cmds
+        return cmds, self._tile_pad[vis[keep]]
 
     def _setup_camera(self, camera: CameraModel, t_map_optical: RigidTransform, *, shaded: bool) -> _Target:
         target = self._target(camera.width, camera.height)
@@ -324,10 +339,13 @@ class Renderer:
         view = gl_view(t_map_optical)
         mvp = (proj @ view).T.astype("f4").tobytes()
         if shaded:
-            self.prog["u_mvp"].write(mvp)
-            self.prog["u_view"].write(view.T.astype("f4").tobytes())
-            self.prog["u_eye"].value = tuple(float(v) for v in t_map_optical.translation_m)
-            self.prog["u_focal_px"].value = float(camera.fx)
+            view_bytes = view.T.astype("f4").tobytes()
+            eye = tuple(float(v) for v in t_map_optical.translation_m)
+            for prog in (self.prog, self.prog_pad):
+                prog["u_mvp"].write(mvp)
+                prog["u_view"].write(view_bytes)
+                prog["u_eye"].value = eye
+                prog["u_focal_px"].value = float(camera.fx)
         else:
             self.iprog["u_mvp"].write(mvp)
         fbo = target.fbo if shaded else target.fbo_inst
@@ -353,12 +371,18 @@ class Renderer:
             return self._render(camera, t_map_optical)
 
     def _draw_scene(self, camera: CameraModel, t_map_optical: RigidTransform, *, shaded: bool) -> None:
-        cmds = self._draw_commands(camera, t_map_optical)
+        cmds, pad = self._draw_commands(camera, t_map_optical)
         if len(cmds):
             self._indirect.orphan(len(cmds) * 20)
             self._indirect.write(cmds.tobytes())
-            vao = self._static_vao if shaded else self._static_ivao
-            vao.render_indirect(self._indirect, mode=self._mgl.TRIANGLES, count=len(cmds))
+            if not shaded:
+                self._static_ivao.render_indirect(self._indirect, mode=self._mgl.TRIANGLES, count=len(cmds))
+            else:
+                # Runs of tiles with and without the pad, in the front-to-back order (same result as one call).
+                cuts = [0, *(np.flatnonzero(pad[1:] != pad[:-1]) + 1).tolist(), len(cmds)]
+                for a, b in itertools.pairwise(cuts):
+                    vao = self._static_pad_vao if pad[a] else self._static_vao
+                    vao.render_indirect(self._indirect, mode=self._mgl.TRIANGLES, count=b - a, first=a)
         if self.dynamic_triangles:
             (self._dyn_vao if shaded else self._dyn_ivao).render(self._mgl.TRIANGLES)
         self.last_triangles = int(cmds[:, 0].sum() // 3) + self.dynamic_triangles if len(cmds) else 0
@@ -371,10 +395,14 @@ class Renderer:
         self.sky["u_r_map_optical"].write(t_map_optical.rotation.T.astype("f4").tobytes())
         self.sky["u_k"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
         self.sky["u_height"].value = float(camera.height)
-        self.sky_vao.render(self._mgl.TRIANGLES)
         fbo = target.fbo
-        fbo.read_into(target.buf_color, attachment=0, components=3, dtype="f1", alignment=1)
         fbo.read_into(target.buf_depth, attachment=1, components=1, dtype="f4", alignment=1)
+        # A surface's z-depth is >= near_m > 0: the clear value 0 marks the pixels left for the sky. Most nadir
+        # frames have none, and the full-screen sky pass would cost more than this check.
+        if not target.buf_depth.all():
+            self.sky_vao.render(self._mgl.TRIANGLES)
+            fbo.read_into(target.buf_depth, attachment=1, components=1, dtype="f4", alignment=1)
+        fbo.read_into(target.buf_color, attachment=0, components=3, dtype="f1", alignment=1)
         fbo.read_into(target.buf_inst, attachment=2, components=1, dtype="u4", alignment=1)
         return RenderedFrame(
             color_rgb=np.ascontiguousarray(target.buf_color[::-1]),

@@ -7,6 +7,11 @@ The color is the vertex base color times a world-space value-noise texture (thre
 octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
 term, with a little distance haze.  Around home the terrain gets a concrete landing
 pad with an "H".
+
+Speed (Mesa llvmpipe runs every fragment shader on the CPU, and a branch costs both of its
+sides): the haze is computed per vertex (it changes by < 1e-4 across a triangle), and the
+landing pad's per-pixel test is compiled in only with ``#define PAD`` (:func:`with_defines`),
+the variant the renderer uses for the few tiles that touch the pad.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ MAIN_VS = """
 #version 330
 uniform mat4 u_mvp;
 uniform mat4 u_view;
+uniform vec3 u_eye;
+uniform float u_haze_m;
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec3 in_col;
@@ -23,6 +30,7 @@ out vec3 v_pos;
 out vec3 v_nrm;
 out vec3 v_col;
 out float v_z;
+out float v_haze;
 flat out uint v_inst;
 void main() {
     v_pos = in_pos;
@@ -30,6 +38,7 @@ void main() {
     v_col = in_col;
     v_inst = in_inst;
     v_z = -(u_view * vec4(in_pos, 1.0)).z;
+    v_haze = 1.0 - exp(-length(in_pos - u_eye) / u_haze_m);
     gl_Position = u_mvp * vec4(in_pos, 1.0);
 }
 """
@@ -37,10 +46,8 @@ void main() {
 MAIN_FS = """
 #version 330
 uniform vec3 u_sun;
-uniform vec3 u_eye;
 uniform float u_focal_px;
 uniform float u_texture_gain;
-uniform float u_haze_m;
 uniform float u_pad_half_m;
 uniform uint u_pad_instance;
 uniform vec3 u_haze_color;
@@ -48,6 +55,7 @@ in vec3 v_pos;
 in vec3 v_nrm;
 in vec3 v_col;
 in float v_z;
+in float v_haze;
 flat in uint v_inst;
 layout(location = 0) out vec4 f_color;
 layout(location = 1) out float f_depth;
@@ -72,6 +80,7 @@ float octave(vec3 p, float cell_m, float px_m) {
     float w = clamp((cell_m / px_m - 1.5) / 2.0, 0.0, 1.0);
     return mix(0.5, vnoise(p / cell_m), w);
 }
+#ifdef PAD
 vec3 pad(vec3 base) {
     vec2 q = abs(v_pos.xy);
     if (max(q.x, q.y) > u_pad_half_m) return base;
@@ -84,6 +93,7 @@ vec3 pad(vec3 base) {
     if (bar || mid) c = vec3(0.95, 0.95, 0.93);
     return c;
 }
+#endif
 void main() {
     vec3 n = normalize(v_nrm);
     if (!gl_FrontFacing) n = -n;
@@ -91,17 +101,27 @@ void main() {
     float tex = 0.5 * octave(v_pos, 0.45, px_m) + 0.3 * octave(v_pos, 1.7, px_m) + 0.2 * octave(v_pos, 7.0, px_m);
     tex = 1.0 + u_texture_gain * (tex - 0.5);
     vec3 base = v_col;
+#ifdef PAD
     if (v_inst == u_pad_instance) base = pad(base);
+#endif
     float sun = max(dot(n, u_sun), 0.0);
     float sky = 0.5 + 0.5 * n.z;
     vec3 lit = base * tex * (0.78 * sun + 0.34 * sky + 0.06);
-    float dist = length(v_pos - u_eye);
-    float haze = 1.0 - exp(-dist / u_haze_m);
-    f_color = vec4(clamp(mix(lit, u_haze_color, 0.55 * haze), 0.0, 1.0), 1.0);
+    f_color = vec4(clamp(mix(lit, u_haze_color, 0.55 * v_haze), 0.0, 1.0), 1.0);
     f_depth = v_z;
     f_inst = v_inst;
 }
 """
+
+
+def with_defines(source: str, *names: str) -> str:
+    """``source`` with ``#define NAME`` lines after its ``#version`` line (which must come first)."""
+    version, sep, rest = source.lstrip("\n").partition("\n")
+    if not version.startswith("#version"):
+        msg = "a GLSL source must start with its #version line"
+        raise ValueError(msg)
+    return version + sep + "".join(f"#define {n}\n" for n in names) + rest
+
 
 SKY_VS = """
 #version 330
