@@ -18,8 +18,9 @@ Results (``bench/results/latest.jsonl``):
 * ``scenario.loiter.coverage_efficiency``: that rate over the physical limit (camera swath at the
   flown height x cruise speed, first footprint excluded; docs/scenarios.md); baseline: the
   lawnmower's.
-* ``scenario.loiter.clouds_dropped_pct``: nadir clouds the map server dropped because insertion fell
-  behind (a loop that only looks fast by losing map data would show here); baseline: the lawnmower's.
+* ``scenario.loiter.clouds_dropped_pct``: nadir frames the map server dropped because insertion fell
+  behind, or received incomplete (depth, colour and camera info of one stamp; a loop that only looks fast
+  by losing map data would show here); baseline: the lawnmower's.
 * ``scenario.loiter.cpu_s_per_sim_s``: CPU seconds of all the run's processes per simulated second
   (sampled from /proc; the notes break it down per node); on 2 cores 3x real time needs <= 0.67.
 
@@ -177,7 +178,8 @@ def _flight(metrics: dict[str, Any], label: str) -> str:
 def dropped_pct(metrics: dict[str, Any]) -> float:
     m = metrics.get("map_input") or {}
     received = float(m.get("clouds_received", 0))
-    return 100.0 * float(m.get("dropped_queue_full", 0)) / received if received else float("nan")
+    lost = float(m.get("dropped_queue_full", 0)) + float(m.get("dropped_unsynchronized", 0))
+    return 100.0 * lost / received if received else float("nan")
 
 
 @dataclass
@@ -269,7 +271,10 @@ def main() -> int:
         loiter.mean(lambda i: dropped_pct(loiter.metrics[i])),
         "%",
         mower.mean(lambda i: dropped_pct(mower.metrics[i])),
-        notes=f"{notes}; clouds the map server dropped (queue_full) of those it received",
+        notes=(
+            f"{notes}; frames the map server dropped of those it received: insertion too slow (queue_full) "
+            "or incomplete (unsynchronized)"
+        ),
     )
     cpu = loiter.cpu_per_sim_s()
     record(

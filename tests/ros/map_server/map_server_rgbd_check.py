@@ -172,6 +172,26 @@ class MapServerRgbdCheck(unittest.TestCase):
         self.assertEqual(st.clouds_dropped_bad_layout, 5)
         self.assertEqual(st.clouds_dropped_empty, 1)
 
+    def test_4_an_incomplete_frame_is_dropped_and_counted(self) -> None:
+        """A frame whose colour image never arrives must not vanish: once a newer frame is complete, the
+        synchroniser gives it up and the map server reports it as unsynchronized."""
+        depth, rgb = render()
+        lost = rospy.Time.from_sec(SIM_START_S + 5.0)
+        n_before = len(self.stats)
+        self.pub_info.publish(info(lost))
+        self.pub_depth.publish(image(depth, "32FC1", lost))
+        rospy.sleep(0.5)  # the parts reach the synchroniser before the next frame's
+        stamp = rospy.Time.from_sec(SIM_START_S + 5.1)
+        self.pub_color.publish(image(rgb, "rgb8", stamp))
+        self.pub_info.publish(info(stamp))
+        self.pub_depth.publish(image(depth, "32FC1", stamp))
+        wait_until(lambda: len(self.stats), lambda n: n >= n_before + 2, timeout_s=15.0, describe="two insert_stats")
+        by_stamp = {st.header.stamp: st for st in self.stats[n_before:]}
+        self.assertTrue(by_stamp[stamp].inserted, by_stamp[stamp].drop_reason)
+        self.assertFalse(by_stamp[lost].inserted)
+        self.assertEqual(by_stamp[lost].drop_reason, "unsynchronized")
+        self.assertEqual(self.stats[-1].clouds_dropped_unsynchronized, 1)
+
 
 if __name__ == "__main__":
     rostest.rosrun("uav_rostests", "map_server_rgbd_check", MapServerRgbdCheck)

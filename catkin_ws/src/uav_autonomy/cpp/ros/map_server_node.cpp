@@ -272,19 +272,29 @@ class MapServerNode {
     // service of the main thread (e.g. building markers of a large map), so drops are counted, not silent.
     std::string inputs;
     if (p_.rgbd_input) {
-      // Depth, colour and camera info of one frame carry one stamp (exact synchronisation).
+      // Depth, colour and camera info of one frame carry one stamp (exact synchronisation). roscpp drops the
+      // oldest message of a full subscription queue without a word, and a frame that lost one part then never
+      // completes: the queues are deep enough for the spinner to fall behind by a second of 10 Hz frames (our own
+      // queue_size decides, and counts, what insertion cannot keep up with), and a frame the synchroniser gives
+      // up on is counted as `unsynchronized`.
       const ros::TransportHints hints;
-      sub_depth_.subscribe(nh_, "depth_in", 3, hints, &cloud_queue_);
-      sub_info_.subscribe(nh_, "camera_info_in", 3, hints, &cloud_queue_);
+      constexpr uint32_t kTopicQueue = 10;
+      constexpr uint32_t kSyncQueue = 10;
+      sub_depth_.subscribe(nh_, "depth_in", kTopicQueue, hints, &cloud_queue_);
+      sub_info_.subscribe(nh_, "camera_info_in", kTopicQueue, hints, &cloud_queue_);
       if (p_.rgbd_color) {
-        sub_color_.subscribe(nh_, "color_in", 3, hints, &cloud_queue_);
-        sync_rgbd_ = std::make_unique<RgbdSync>(sub_depth_, sub_color_, sub_info_, 6);
+        sub_color_.subscribe(nh_, "color_in", kTopicQueue, hints, &cloud_queue_);
+        sync_rgbd_ = std::make_unique<RgbdSync>(sub_depth_, sub_color_, sub_info_, kSyncQueue);
         sync_rgbd_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
                                                  boost::placeholders::_2, boost::placeholders::_3));
+        sync_rgbd_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
+                                                     boost::placeholders::_2, boost::placeholders::_3));
       } else {
-        sync_depth_ = std::make_unique<DepthSync>(sub_depth_, sub_info_, 6);
+        sync_depth_ = std::make_unique<DepthSync>(sub_depth_, sub_info_, kSyncQueue);
         sync_depth_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
                                                   sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
+        sync_depth_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
+                                                      sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
       }
       inputs = "depth_in " + sub_depth_.getTopic() + (p_.rgbd_color ? ", color_in " + sub_color_.getTopic() : "") +
                ", camera_info_in " + sub_info_.getTopic();
@@ -338,6 +348,7 @@ class MapServerNode {
   using DepthSync = message_filters::TimeSynchronizer<sensor_msgs::Image, sensor_msgs::CameraInfo>;
   struct Totals {
     uint64_t inserted = 0, empty = 0, bad_layout = 0, too_large = 0, no_transform = 0, queue_full = 0;
+    uint64_t unsynchronized = 0;
     uint64_t nonfinite = 0;
   };
 
@@ -358,6 +369,23 @@ class MapServerNode {
     item.color = color;
     item.info = info;
     enqueue(std::move(item));
+  }
+
+  /// A frame the synchroniser gave up on: some of its depth, colour and camera info never arrived (or came after
+  /// a newer frame had been synchronised).
+  void onUnsynchronized(const sensor_msgs::ImageConstPtr& depth, const sensor_msgs::ImageConstPtr& color,
+                        const sensor_msgs::CameraInfoConstPtr& info) {
+    Pending item;
+    item.header = depth ? depth->header : color ? color->header : info ? info->header : std_msgs::Header();
+    item.depth = depth;
+    std::string missing;
+    if (!depth) missing += " depth_in";
+    if (p_.rgbd_color && !color) missing += " color_in";
+    if (!info) missing += " camera_info_in";
+    drop(item, "unsynchronized",
+         "no" + missing + " with the stamp " + std::to_string(item.header.stamp.toSec()) +
+             " (the publisher or this node's subscription lost it; the frame is incomplete)",
+         0.0);
   }
 
   void enqueue(Pending item) {
@@ -484,6 +512,7 @@ class MapServerNode {
       if (reason == "too_large") ++totals_.too_large;
       if (reason == "no_transform") ++totals_.no_transform;
       if (reason == "queue_full") ++totals_.queue_full;
+      if (reason == "unsynchronized") ++totals_.unsynchronized;
       fillStats(s, item.header);
     }
     s.inserted = false;
@@ -517,6 +546,7 @@ class MapServerNode {
     s.clouds_dropped_too_large = totals_.too_large;
     s.clouds_dropped_no_transform = totals_.no_transform;
     s.clouds_dropped_queue_full = totals_.queue_full;
+    s.clouds_dropped_unsynchronized = totals_.unsynchronized;
     s.points_nonfinite_total = totals_.nonfinite;
     s.map_leaves = map_leaves_.load();
     s.map_memory_bytes = map_memory_.load();

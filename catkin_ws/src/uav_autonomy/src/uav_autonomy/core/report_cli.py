@@ -60,7 +60,8 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
             f"  mapped {f('coverage.mapped_pct', ' %', 2)} of the scene ({f('coverage.mapped_m2', ' m²', 0)}), "
             f"coverage efficiency {f('coverage.efficiency', '', 3)}; map server inserted "
             f"{f('map_input.clouds_inserted', '', 0)} of {f('map_input.clouds_received', '', 0)} clouds "
-            f"({f('map_input.dropped_queue_full', '', 0)} dropped: insertion too slow)"
+            f"({f('map_input.dropped_queue_full', '', 0)} dropped: insertion too slow; "
+            f"{f('map_input.dropped_unsynchronized', '', 0)} incomplete)"
         ),
         (
             f"  map vs ground truth: IoU {f('map_accuracy.iou', '', 3)} over the scene, "

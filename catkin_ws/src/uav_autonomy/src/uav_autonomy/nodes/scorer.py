@@ -308,6 +308,7 @@ class ScorerNode:
             "empty": int(msg.clouds_dropped_empty),
             "bad_layout": int(msg.clouds_dropped_bad_layout),
             "too_large": int(msg.clouds_dropped_too_large),
+            "unsynchronized": int(msg.clouds_dropped_unsynchronized),
         }
         with self.lock:
             if int(msg.clouds_inserted) + sum(dropped.values()) >= self.map_input.get("clouds_received", 0):
