@@ -832,6 +832,14 @@ TEST(voxel_grid_filter_downsamples) {
   FilterStats st2;
   voxelGridFilter(huge, 0.01, st2);
   CHECK(st2.voxel_grid_skipped && huge.size() == 2);
+  // So are clouds whose leaf indices do not fit int32 (a broken transform; this used to crash the column map).
+  for (VoxelFilterImpl impl : {VoxelFilterImpl::kFast, VoxelFilterImpl::kPcl}) {
+    ColoredPoints remote;
+    for (int i = 0; i < 100; ++i) remote.xyz.push_back(P(1e9 + 64.0 * i, 0.0, 0.0));
+    FilterStats st3;
+    voxelGridFilter(remote, 0.25, st3, impl);
+    CHECK(st3.voxel_grid_skipped && remote.size() == 100 && st3.points_out == 100);
+  }
 }
 
 /// Points (one per voxel-grid leaf) in the leaf order of floor(p / leaf) by (z, y, x), as PCL orders its leaves.
