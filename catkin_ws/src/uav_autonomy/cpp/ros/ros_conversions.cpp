@@ -196,21 +196,6 @@ CloudError depthImageViews(const sensor_msgs::Image& depth, const sensor_msgs::I
   return CloudError::kNone;
 }
 
-CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
-                         const sensor_msgs::CameraInfo& info, std::size_t max_points, ColoredPoints& out,
-                         std::string& detail) {
-  out.clear();
-  DepthInput in;
-  const CloudError err = depthImageViews(depth, color, info, max_points, in, detail);
-  if (err != CloudError::kNone) return err;
-  depthToOpticalPoints(in.depth, in.color, in.k, out);
-  if (out.size() == 0) {
-    detail = "no pixel with a valid depth";
-    return CloudError::kEmpty;
-  }
-  return CloudError::kNone;
-}
-
 RigidTransform fromMsg(const geometry_msgs::TransformStamped& tf) {
   const auto& q = tf.transform.rotation;
   double w = q.w, x = q.x, y = q.y, z = q.z;

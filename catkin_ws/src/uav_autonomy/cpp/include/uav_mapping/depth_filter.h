@@ -1,5 +1,6 @@
 // The rgbd front end without ROS: a z-depth image (plus optional registered colour image) back-projected
-// through a pinhole camera into points in the sensor's optical frame.
+// through a pinhole camera into points, in the sensor's optical frame or straight into the map frame through
+// the filters and the voxel grid of cloud_filter.h.
 #pragma once
 
 #include <uav_mapping/cloud_filter.h>
@@ -48,5 +49,24 @@ struct PinholeIntrinsics {
 /// Throws std::invalid_argument when the views or intrinsics are unusable (callers validate first and say why).
 void depthToOpticalPoints(const DepthImageView& depth, const ColorImageView& color, const PinholeIntrinsics& k,
                           ColoredPoints& out);
+
+/// How filterDepthImage processed a frame (the result is the same either way).
+enum class DepthFrontEndPath {
+  kOnePass,               // everything, voxel grid included, in one pass (voxel_filter fast, leaf > 0)
+  kOnePassThenVoxelGrid,  // one pass to the filtered cloud, then voxelGridFilter on it (leaf 0, or pcl)
+  kThreeStages,           // a point lies beyond the pass's leaf window (more than 1024 leaves from the sensor
+                          // along x or y: 512 m at 0.5 m): the three stages one after the other
+};
+
+/// The whole front end of a depth frame in one pass over the pixels: back-projection, transform into the map
+/// frame, the non-finite / range / box filters and the voxel grid, summing each point into its voxel-grid leaf
+/// as soon as it is made instead of materialising the optical-frame and map-frame clouds in between.
+/// Bit for bit the result of depthToOpticalPoints -> transformAndFilter -> voxelGridFilter with the same
+/// options: the same floats in the same order and the same stats (every floating-point operation and each
+/// leaf's summation order, which is pixel order, are the same). Stats are added to like transformAndFilter's;
+/// stats.points_in counts the pixels with a return (0: nothing to insert). Throws like depthToOpticalPoints.
+DepthFrontEndPath filterDepthImage(const DepthImageView& depth, const ColorImageView& color,
+                                   const PinholeIntrinsics& k, const RigidTransform& map_from_optical,
+                                   const FilterOptions& options, ColoredPoints& out, FilterStats& stats);
 
 }  // namespace uav_mapping
