@@ -17,6 +17,7 @@
 // queue is counted, not silently lost.
 #include "ros_conversions.h"
 
+#include <uav_mapping/depth_filter.h>
 #include <uav_mapping/mapper.h>
 #include <uav_mapping/octree_map.h>
 
@@ -455,19 +456,38 @@ class MapServerNode {
 
   void insert(const Pending& item, const geometry_msgs::TransformStamped& tf, double wait_ms) {
     std::string detail;
-    const ros_conv::CloudError err =
-        item.cloud ? ros_conv::parseCloud(*item.cloud, p_.max_points, sensor_points_, detail)
-                   : ros_conv::depthToPoints(*item.depth, item.color.get(), *item.info, p_.max_points, sensor_points_,
-                                             detail);
-    if (err != ros_conv::CloudError::kNone) {
-      drop(item, ros_conv::toString(err), detail, wait_ms);
-      return;
-    }
+    const RigidTransform map_from_sensor = ros_conv::fromMsg(tf);
     const std_msgs::Header& hdr = item.header;
     InsertStats st;
-    {
+    if (item.cloud) {
+      const ros_conv::CloudError err = ros_conv::parseCloud(*item.cloud, p_.max_points, sensor_points_, detail);
+      if (err != ros_conv::CloudError::kNone) {
+        drop(item, ros_conv::toString(err), detail, wait_ms);
+        return;
+      }
       std::lock_guard<std::mutex> lock(map_mutex_);
-      st = mapper_.insert(sensor_points_, ros_conv::fromMsg(tf), hdr.stamp.toSec());
+      st = mapper_.insert(sensor_points_, map_from_sensor, hdr.stamp.toSec());
+      markChanged();
+    } else {
+      // Depth images take the fused front end (back-projection, transform, filters and voxel grid in one pass
+      // over the pixels; the same points as the cloud path would get), outside the map lock: it needs no map.
+      ros_conv::DepthInput in;
+      const ros_conv::CloudError err =
+          ros_conv::depthImageViews(*item.depth, item.color.get(), *item.info, p_.max_points, in, detail);
+      if (err != ros_conv::CloudError::kNone) {
+        drop(item, ros_conv::toString(err), detail, wait_ms);
+        return;
+      }
+      FilterStats filter;
+      const auto t0 = std::chrono::steady_clock::now();
+      filterDepthImage(in.depth, in.color, in.k, map_from_sensor, mapper_.config().filter, map_points_, filter);
+      const double filter_ms = msBetween(t0, std::chrono::steady_clock::now());
+      if (filter.points_in == 0) {
+        drop(item, ros_conv::toString(ros_conv::CloudError::kEmpty), "no pixel with a valid depth", wait_ms);
+        return;
+      }
+      std::lock_guard<std::mutex> lock(map_mutex_);
+      st = mapper_.insertFiltered(map_points_, filter, filter_ms, map_from_sensor.origin(), hdr.stamp.toSec());
       markChanged();
     }
     if (st.filter.nonfinite > 0 && shouldWarn("nonfinite"))
@@ -831,6 +851,7 @@ class MapServerNode {
   bool stop_ = false;
   std::thread worker_;
   ColoredPoints sensor_points_;  // worker thread only
+  ColoredPoints map_points_;     // worker thread only: a depth frame's filtered map-frame points
 
   std::mutex stats_mutex_;
   Totals totals_;

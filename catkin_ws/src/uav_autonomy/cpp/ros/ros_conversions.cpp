@@ -121,10 +121,10 @@ std::string imageLayoutProblem(const sensor_msgs::Image& img, uint32_t bytes_per
 }
 }  // namespace
 
-CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
-                         const sensor_msgs::CameraInfo& info, std::size_t max_points, ColoredPoints& out,
-                         std::string& detail) {
-  out.clear();
+CloudError depthImageViews(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
+                           const sensor_msgs::CameraInfo& info, std::size_t max_points, DepthInput& out,
+                           std::string& detail) {
+  out = DepthInput();
   const bool metres = depth.encoding == "32FC1";
   if (!metres && depth.encoding != "16UC1") {
     detail = "depth encoding '" + depth.encoding + "' is not supported; publish 32FC1 (metres) or 16UC1 (mm)";
@@ -155,59 +155,43 @@ CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Ima
              " but the depth image " + std::to_string(depth.width) + " x " + std::to_string(depth.height);
     return CloudError::kBadLayout;
   }
-  int channels = 0;
-  bool bgr = false;
+  ColorImageView color_view;
   if (color != nullptr) {
     const std::string& e = color->encoding;
-    channels = (e == "rgb8" || e == "bgr8") ? 3 : (e == "rgba8" || e == "bgra8") ? 4 : 0;
-    bgr = e == "bgr8" || e == "bgra8";
-    if (channels == 0) {
+    if (e == "rgb8") {
+      color_view.encoding = ColorEncoding::kRgb8;
+    } else if (e == "bgr8") {
+      color_view.encoding = ColorEncoding::kBgr8;
+    } else if (e == "rgba8") {
+      color_view.encoding = ColorEncoding::kRgba8;
+    } else if (e == "bgra8") {
+      color_view.encoding = ColorEncoding::kBgra8;
+    } else {
       detail = "color encoding '" + e + "' is not supported; publish rgb8, bgr8, rgba8 or bgra8";
       return CloudError::kBadLayout;
     }
+    const uint32_t channels = (e == "rgb8" || e == "bgr8") ? 3 : 4;
     if (color->width != depth.width || color->height != depth.height) {
       detail = "the color image is " + std::to_string(color->width) + " x " + std::to_string(color->height) +
                " but the depth image " + std::to_string(depth.width) + " x " + std::to_string(depth.height) +
                " (register depth to color, or set ~rgbd_color false)";
       return CloudError::kBadLayout;
     }
-    problem = imageLayoutProblem(*color, static_cast<uint32_t>(channels));
+    problem = imageLayoutProblem(*color, channels);
     if (!problem.empty()) {
       detail = "color image: " + problem;
       return CloudError::kBadLayout;
     }
+    color_view.data = color->data.data();
+    color_view.step_bytes = color->step;
   }
-  // Normalised ray per column and row, rounded to float once (as the bridge's packer does).
-  std::vector<float> x_n(depth.width);
-  std::vector<float> y_n(depth.height);
-  for (uint32_t u = 0; u < depth.width; ++u) x_n[u] = static_cast<float>((static_cast<double>(u) - cx) / fx);
-  for (uint32_t v = 0; v < depth.height; ++v) y_n[v] = static_cast<float>((static_cast<double>(v) - cy) / fy);
-  out.xyz.reserve(n);
-  if (color != nullptr) out.rgb.reserve(n);
-  for (uint32_t v = 0; v < depth.height; ++v) {
-    const uint8_t* row = depth.data.data() + static_cast<std::size_t>(v) * depth.step;
-    const uint8_t* crow = color != nullptr ? color->data.data() + static_cast<std::size_t>(v) * color->step : nullptr;
-    for (uint32_t u = 0; u < depth.width; ++u) {
-      float z;
-      if (metres) {
-        std::memcpy(&z, row + 4 * static_cast<std::size_t>(u), 4);
-      } else {
-        uint16_t mm;
-        std::memcpy(&mm, row + 2 * static_cast<std::size_t>(u), 2);
-        z = mm == 0 ? 0.0f : static_cast<float>(mm) * 0.001f;
-      }
-      if (!(z > 0.0f) || !std::isfinite(z)) continue;  // no return (NaN, inf, 0, negative)
-      out.xyz.emplace_back(z * x_n[u], z * y_n[v], z);
-      if (crow != nullptr) {
-        const uint8_t* c = crow + static_cast<std::size_t>(channels) * u;
-        out.rgb.push_back(bgr ? std::array<uint8_t, 3>{c[2], c[1], c[0]} : std::array<uint8_t, 3>{c[0], c[1], c[2]});
-      }
-    }
-  }
-  if (out.size() == 0) {
-    detail = "no pixel with a valid depth";
-    return CloudError::kEmpty;
-  }
+  out.depth.data = depth.data.data();
+  out.depth.width = depth.width;
+  out.depth.height = depth.height;
+  out.depth.step_bytes = depth.step;
+  out.depth.encoding = metres ? DepthEncoding::kFloat32Metres : DepthEncoding::kUint16Millimetres;
+  out.color = color_view;
+  out.k = PinholeIntrinsics{fx, fy, cx, cy};
   detail.clear();
   return CloudError::kNone;
 }

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <uav_mapping/column_layers.h>
+#include <uav_mapping/depth_filter.h>
 #include <uav_mapping/mapper.h>
 #include <uav_mapping/octree_map.h>
 
@@ -29,13 +30,21 @@ const char* toString(CloudError e);
 CloudError parseCloud(const sensor_msgs::PointCloud2& msg, std::size_t max_points, ColoredPoints& out,
                       std::string& detail);
 
-/// Back-projects a z-depth image (32FC1 metres, or 16UC1 millimetres with 0 = no return) through the pinhole
-/// K of `info` into optical-frame points, one per pixel with a finite positive depth, row-major, coloured from
-/// `color` (rgb8, bgr8, rgba8 or bgra8 of the same size; nullptr: no colour). The arithmetic is the sim
-/// bridge's cloud packing (uav_common.pointcloud.DepthImagePacker), so both inputs give the same points.
-CloudError depthToPoints(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
-                         const sensor_msgs::CameraInfo& info, std::size_t max_points, ColoredPoints& out,
-                         std::string& detail);
+/// A depth frame's images as views into the messages (valid while the messages live) and its intrinsics.
+struct DepthInput {
+  DepthImageView depth;
+  ColorImageView color;  // data == nullptr: no colour
+  PinholeIntrinsics k;
+};
+
+/// Checks a z-depth image (32FC1 metres, or 16UC1 millimetres with 0 = no return), its optional registered
+/// `color` image (rgb8, bgr8, rgba8 or bgra8 of the same size; nullptr: no colour) and the pinhole K of `info`,
+/// and returns views of them for the core's depth front end (depth_filter.h: filterDepthImage, or
+/// depthToOpticalPoints for the points themselves). Returns the reason a frame cannot be used;
+/// `detail` says what exactly is wrong and what to publish instead.
+CloudError depthImageViews(const sensor_msgs::Image& depth, const sensor_msgs::Image* color,
+                           const sensor_msgs::CameraInfo& info, std::size_t max_points, DepthInput& out,
+                           std::string& detail);
 
 RigidTransform fromMsg(const geometry_msgs::TransformStamped& tf);
 

@@ -1,6 +1,8 @@
 // The only translation unit that includes PCL (its headers are slow to compile).
 #include <uav_mapping/cloud_filter.h>
 
+#include "voxel_leaf.h"
+
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
@@ -63,11 +65,14 @@ thread_local std::vector<MortonItem> tl_items;
 thread_local std::vector<MortonItem> tl_scratch;
 thread_local ColoredPoints tl_out;
 
-/// std::floor for |v| < 2^62 without the libm call (baseline x86-64 has no SSE4.1 round instruction).
-inline int64_t floorToInt(float v) {
-  const auto i = static_cast<int64_t>(v);  // truncates toward zero
-  return i - static_cast<int64_t>(v < static_cast<float>(i));
-}
+using voxel_leaf::floorToInt;
+using voxel_leaf::kMaxColumns;
+using voxel_leaf::kNoLeaf;
+using voxel_leaf::LeafSum;
+
+thread_local std::vector<uint32_t> tl_column_head;  // all kNoLeaf between calls
+thread_local std::vector<LeafSum> tl_leaves;
+thread_local std::vector<uint32_t> tl_leaf_column;
 
 /// PCL VoxelGrid's arithmetic (leaf = floor(p * (1 / leaf)) in float, float centroid, colour = truncated float
 /// mean) without its per-point index vector and comparison sort. Each point finds its leaf through a dense
@@ -75,19 +80,6 @@ inline int64_t floorToInt(float v) {
 /// at once, in cloud order. A camera's neighbouring pixels fall into the same or recently used leaves, so the
 /// sums stay in cache (sorting the points by leaf and then gathering them was the cost). Leaves come out in the
 /// order they were first hit (PCL: leaf index order; the map built from them is the same either way).
-struct LeafSum {
-  int32_t iz;
-  uint32_t next;  // next leaf of the same column, or kNoLeaf
-  uint32_t count;
-  float sx, sy, sz, sr, sg, sb;
-};
-constexpr uint32_t kNoLeaf = std::numeric_limits<uint32_t>::max();
-constexpr uint64_t kMaxColumns = 1ULL << 22;  // 16 MiB of column heads; wider clouds use the sorting variant
-
-thread_local std::vector<uint32_t> tl_column_head;  // all kNoLeaf between calls
-thread_local std::vector<LeafSum> tl_leaves;
-thread_local std::vector<uint32_t> tl_leaf_column;
-
 bool columnVoxelGrid(ColoredPoints& points, double leaf_m, const int32_t min_b[3], const int32_t div_b[3]) {
   const uint64_t columns = static_cast<uint64_t>(div_b[0]) * static_cast<uint64_t>(div_b[1]);
   if (columns > kMaxColumns) return false;
@@ -235,9 +227,7 @@ void voxelGridFilter(ColoredPoints& points, double leaf_m, FilterStats& stats, V
       hi[a] = std::max(hi[a], p(a));
     }
   }
-  double cells = 1.0;
-  for (int a = 0; a < 3; ++a) cells *= std::floor((hi[a] - lo[a]) / leaf_m) + 1.0;
-  if (cells > static_cast<double>(std::numeric_limits<int32_t>::max())) {
+  if (voxel_leaf::voxelIndexOverflows(lo, hi, leaf_m)) {
     stats.voxel_grid_skipped = true;
     return;
   }

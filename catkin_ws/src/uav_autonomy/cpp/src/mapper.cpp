@@ -77,12 +77,19 @@ float Mapper::relativeTime(double stamp_s) {
 }
 
 InsertStats Mapper::insert(const ColoredPoints& sensor_points, const RigidTransform& map_from_sensor, double stamp_s) {
-  InsertStats stats;
+  FilterStats filter;
   const auto t0 = Clock::now();
-  transformAndFilter(sensor_points, map_from_sensor, config_.filter, filtered_, stats.filter);
-  voxelGridFilter(filtered_, config_.filter.voxel_leaf_m, stats.filter, config_.filter.voxel_impl);
-  stats.filter_ms = msSince(t0);
-  const InsertStats inner = insertMapPoints(filtered_, map_from_sensor.origin(), stamp_s);
+  transformAndFilter(sensor_points, map_from_sensor, config_.filter, filtered_, filter);
+  voxelGridFilter(filtered_, config_.filter.voxel_leaf_m, filter, config_.filter.voxel_impl);
+  return insertFiltered(filtered_, filter, msSince(t0), map_from_sensor.origin(), stamp_s);
+}
+
+InsertStats Mapper::insertFiltered(const ColoredPoints& map_points, const FilterStats& filter, double filter_ms,
+                                   const Point3& origin, double stamp_s) {
+  InsertStats stats;
+  stats.filter = filter;
+  stats.filter_ms = filter_ms;
+  const InsertStats inner = insertMapPoints(map_points, origin, stamp_s);
   stats.points_inserted = inner.points_inserted;
   stats.points_out_of_map = inner.points_out_of_map;
   stats.rays = inner.rays;
@@ -91,7 +98,7 @@ InsertStats Mapper::insert(const ColoredPoints& sensor_points, const RigidTransf
   stats.raycast_ms = inner.raycast_ms;
   stats.update_ms = inner.update_ms;
   stats.layers_ms = inner.layers_ms;
-  stats.total_ms = msSince(t0);
+  stats.total_ms = filter_ms + inner.total_ms;
   return stats;
 }
 

@@ -9,6 +9,7 @@
 #include "synthetic_world.h"
 
 #include <uav_mapping/column_layers.h>
+#include <uav_mapping/depth_filter.h>
 #include <uav_mapping/mapper.h>
 #include <uav_mapping/octree_map.h>
 #include <uav_mapping/vdb_map.h>
@@ -832,6 +833,14 @@ TEST(voxel_grid_filter_downsamples) {
   FilterStats st2;
   voxelGridFilter(huge, 0.01, st2);
   CHECK(st2.voxel_grid_skipped && huge.size() == 2);
+  // So are clouds whose leaf indices do not fit int32 (a broken transform; this used to crash the column map).
+  for (VoxelFilterImpl impl : {VoxelFilterImpl::kFast, VoxelFilterImpl::kPcl}) {
+    ColoredPoints remote;
+    for (int i = 0; i < 100; ++i) remote.xyz.push_back(P(1e9 + 64.0 * i, 0.0, 0.0));
+    FilterStats st3;
+    voxelGridFilter(remote, 0.25, st3, impl);
+    CHECK(st3.voxel_grid_skipped && remote.size() == 100 && st3.points_out == 100);
+  }
 }
 
 /// Points (one per voxel-grid leaf) in the leaf order of floor(p / leaf) by (z, y, x), as PCL orders its leaves.
@@ -929,6 +938,343 @@ TEST(pipeline_with_voxel_grid_matches_map_frame_insert) {
   Mapper d(c);
   const InsertStats st = d.insert(f.optical[0], f.poses[0], 1.0);
   CHECK(st.points_inserted < st.filter.points_in && st.points_inserted > 100);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The fused depth-image front end against the three stages it replaces
+
+/// The reference: back-projection, transform + filters, voxel grid, one after the other.
+void threeStageFrontEnd(const DepthImageView& depth, const ColorImageView& color, const PinholeIntrinsics& k,
+                        const RigidTransform& tf, const FilterOptions& options, ColoredPoints& out,
+                        FilterStats& stats) {
+  ColoredPoints optical;
+  depthToOpticalPoints(depth, color, k, optical);
+  transformAndFilter(optical, tf, options, out, stats);
+  voxelGridFilter(out, options.voxel_leaf_m, stats, options.voxel_impl);
+}
+
+bool sameBits(float a, float b) { return std::memcmp(&a, &b, sizeof(float)) == 0; }
+
+/// Fused == three stages: every float bit for bit (signed zeros included), colours, order and all stats.
+/// Returns the fused result's size.
+std::size_t checkFusedEqualsThreeStages(const DepthImageView& depth, const ColorImageView& color,
+                                        const PinholeIntrinsics& k, const RigidTransform& tf,
+                                        const FilterOptions& options, const std::string& what,
+                                        FilterStats* stats_out = nullptr, DepthFrontEndPath* path_out = nullptr) {
+  ColoredPoints ref;
+  ColoredPoints fused;
+  FilterStats sr;
+  FilterStats sf;
+  threeStageFrontEnd(depth, color, k, tf, options, ref, sr);
+  fused.xyz.push_back(P(1, 2, 3));  // stale content must go
+  const DepthFrontEndPath path = filterDepthImage(depth, color, k, tf, options, fused, sf);
+  CHECK_MSG(sf.points_in == sr.points_in && sf.nonfinite == sr.nonfinite && sf.too_close == sr.too_close &&
+                sf.outside_box == sr.outside_box && sf.points_out == sr.points_out &&
+                sf.voxel_grid_skipped == sr.voxel_grid_skipped,
+            what << ": stats in/nonfinite/close/box/out/skipped " << sf.points_in << "/" << sf.nonfinite << "/"
+                 << sf.too_close << "/" << sf.outside_box << "/" << sf.points_out << "/" << sf.voxel_grid_skipped
+                 << " vs " << sr.points_in << "/" << sr.nonfinite << "/" << sr.too_close << "/" << sr.outside_box
+                 << "/" << sr.points_out << "/" << sr.voxel_grid_skipped);
+  CHECK_MSG(fused.size() == ref.size() && fused.rgb.size() == ref.rgb.size(),
+            what << ": " << fused.size() << " vs " << ref.size() << " points, " << fused.rgb.size() << " vs "
+                 << ref.rgb.size() << " colours");
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    for (int a = 0; a < 3; ++a)
+      CHECK_MSG(sameBits(fused.xyz[i](a), ref.xyz[i](a)),
+                what << ": point " << i << " axis " << a << ": " << fused.xyz[i](a) << " vs " << ref.xyz[i](a));
+    if (ref.hasColor()) CHECK_MSG(fused.rgb[i] == ref.rgb[i], what << ": colour of point " << i);
+  }
+  if (stats_out != nullptr) *stats_out = sf;
+  if (path_out != nullptr) *path_out = path;
+  return fused.size();
+}
+
+/// A depth image with padded rows (step > width x bytes) in either encoding, and a colour image of each kind.
+struct TestImages {
+  uint32_t width = 0;
+  uint32_t height = 0;
+  std::vector<uint8_t> depth;
+  std::size_t depth_step = 0;
+  DepthEncoding encoding = DepthEncoding::kFloat32Metres;
+  std::vector<uint8_t> color;
+  std::size_t color_step = 0;
+
+  DepthImageView depthView() const { return DepthImageView{depth.data(), width, height, depth_step, encoding}; }
+  ColorImageView colorView(ColorEncoding e) const { return ColorImageView{color.data(), color_step, e}; }
+
+  void setDepth(uint32_t u, uint32_t v, float z) {
+    uint8_t* px = depth.data() + v * depth_step;
+    if (encoding == DepthEncoding::kFloat32Metres) {
+      std::memcpy(px + 4 * u, &z, 4);
+    } else {
+      const uint16_t mm = std::isfinite(z) && z > 0.0f ? static_cast<uint16_t>(std::min(65535.0f, z * 1000.0f)) : 0;
+      std::memcpy(px + 2 * u, &mm, 2);
+    }
+  }
+};
+
+TestImages testImages(uint32_t width, uint32_t height, DepthEncoding encoding, uint32_t seed, float typical_m) {
+  TestImages im;
+  im.width = width;
+  im.height = height;
+  im.encoding = encoding;
+  im.depth_step = width * (encoding == DepthEncoding::kFloat32Metres ? 4 : 2) + 6;  // padded rows
+  im.depth.assign(im.depth_step * height, 0xAB);
+  im.color_step = width * 4 + 5;  // enough for 4 channels, padded
+  im.color.resize(im.color_step * height);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  for (auto& c : im.color) c = static_cast<uint8_t>(rng() & 0xFF);
+  // (huge depths come only at the left and right edges below: kept ones would leave the fused pass's window)
+  const float specials[] = {std::nanf(""), INFINITY, -INFINITY, 0.0f, -0.0f, -1.5f, 1e-40f};
+  for (uint32_t v = 0; v < height; ++v) {
+    for (uint32_t u = 0; u < width; ++u) {
+      const float r = unit(rng);
+      float z;
+      if (r < 0.08f) {
+        z = specials[rng() % (sizeof(specials) / sizeof(specials[0]))];
+      } else if (r < 0.15f) {
+        z = 0.05f + 2.0f * unit(rng);  // near: min_range
+      } else {
+        // a smooth surface with steps, so pixels share voxel-grid leaves as a camera's do
+        z = typical_m * (1.0f + 0.2f * std::sin(0.05f * static_cast<float>(u)) + (((u / 16) + (v / 12)) % 3) * 0.05f) +
+            0.01f * unit(rng);
+      }
+      im.setDepth(u, v, z);
+    }
+    // 3e38 m where |x_n| > 1.2: z * x_n overflows float, a non-finite point (32FC1 only; 16UC1 saturates)
+    if (v % 5 == 0) {
+      im.setDepth(0, v, 3e38f);
+      im.setDepth(width - 1, v, 3e38f);
+    }
+  }
+  return im;
+}
+
+/// A proper rotation from a random unit quaternion (fromMsg's formula) and a translation.
+RigidTransform randomTransform(std::mt19937& rng, double t_scale_m) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  double w = g(rng), x = g(rng), y = g(rng), z = g(rng);
+  const double n = std::sqrt(w * w + x * x + y * y + z * z);
+  w /= n, x /= n, y /= n, z /= n;
+  RigidTransform t;
+  t.r[0][0] = 1 - 2 * (y * y + z * z);
+  t.r[0][1] = 2 * (x * y - z * w);
+  t.r[0][2] = 2 * (x * z + y * w);
+  t.r[1][0] = 2 * (x * y + z * w);
+  t.r[1][1] = 1 - 2 * (x * x + z * z);
+  t.r[1][2] = 2 * (y * z - x * w);
+  t.r[2][0] = 2 * (x * z - y * w);
+  t.r[2][1] = 2 * (y * z + x * w);
+  t.r[2][2] = 1 - 2 * (x * x + y * y);
+  for (double& c : t.t) c = t_scale_m * g(rng);
+  return t;
+}
+
+TEST(fused_depth_front_end_equals_three_stages_on_synthetic_images) {
+  // NaN, +-inf, 0, -0, negative, denormal and overflowing depths (z * x_n = inf), 32FC1 and 16UC1, no colour
+  // and all four colour encodings, padded rows, random rotations, min_range, a box, leaves 0 (off), 0.25, 0.5
+  // and 1 m, and voxel_filter: pcl.
+  std::mt19937 rng(11);
+  std::size_t cases = 0;
+  std::size_t points_out = 0;
+  for (DepthEncoding enc : {DepthEncoding::kFloat32Metres, DepthEncoding::kUint16Millimetres}) {
+    const TestImages im = testImages(97, 61, enc, 5 + static_cast<uint32_t>(enc), 12.0f);
+    const PinholeIntrinsics k{30.0, 29.0, 48.3, 29.7};  // |x_n| up to 1.6
+    for (int color = -1; color < 4; ++color) {
+      const ColorImageView cv = color < 0 ? ColorImageView() : im.colorView(static_cast<ColorEncoding>(color));
+      for (int variant = 0; variant < 6; ++variant) {
+        const RigidTransform tf = variant == 0 ? RigidTransform() : randomTransform(rng, variant < 4 ? 20.0 : 400.0);
+        FilterOptions o;
+        if (variant % 2 == 1) o.min_range_m = 1.5;
+        if (variant >= 2) {
+          o.min_z_m = tf.t[2] - 6.0;
+          o.max_z_m = tf.t[2] + 8.0;
+          o.min_x_m = tf.t[0] - 9.0;
+          o.max_y_m = tf.t[1] + 7.5;
+        }
+        for (double leaf : {0.0, 0.25, 0.5, 1.0}) {
+          for (VoxelFilterImpl impl : {VoxelFilterImpl::kFast, VoxelFilterImpl::kPcl}) {
+            if (impl == VoxelFilterImpl::kPcl && (leaf != 0.5 || variant > 2)) continue;  // PCL is slow to set up
+            o.voxel_leaf_m = leaf;
+            o.voxel_impl = impl;
+            std::ostringstream what;
+            what << (enc == DepthEncoding::kFloat32Metres ? "32FC1" : "16UC1") << " colour " << color << " variant "
+                 << variant << " leaf " << leaf << " " << toString(impl);
+            FilterStats st;
+            DepthFrontEndPath path;
+            points_out += checkFusedEqualsThreeStages(im.depthView(), cv, k, tf, o, what.str(), &st, &path);
+            CHECK_MSG(st.points_in > 3000 && st.points_out > 0, what.str() << ": " << st.points_in);
+            const bool one_pass = leaf > 0.0 && impl == VoxelFilterImpl::kFast;
+            CHECK_MSG(path == (one_pass ? DepthFrontEndPath::kOnePass : DepthFrontEndPath::kOnePassThenVoxelGrid),
+                      what.str() << ": took the three-stage fallback");
+            if (enc == DepthEncoding::kFloat32Metres) CHECK_MSG(st.nonfinite > 0, what.str());
+            if (variant % 2 == 1) CHECK_MSG(st.too_close > 0, what.str());
+            if (variant >= 2) CHECK_MSG(st.outside_box > 0, what.str());
+            ++cases;
+          }
+        }
+      }
+    }
+  }
+  CHECK(cases > 200 && points_out > 100000);
+}
+
+TEST(fused_depth_front_end_equals_three_stages_on_rendered_frames) {
+  // Full-size 640 x 480 frames of the synthetic world with colour: nadir at 50 m (the benchmark's) and tilted
+  // 35 and 65 degrees (returns up to the camera's 300 m), at several leaf sizes. At 0.1 m (window +-102 m) and
+  // 0.25 m (+-256 m) the 65 degree frame reaches beyond the fused pass's window and takes the three stages.
+  static const synthetic::World world{synthetic::WorldOptions{400.0, 0.25, 3, 4.0, 20.0}};
+  synthetic::Camera cam;
+  std::size_t frames = 0;
+  std::size_t one_pass = 0;
+  std::size_t three_stages = 0;
+  for (double tilt : {0.0, 35.0, 65.0}) {
+    const RigidTransform pose = tilt == 0.0 ? synthetic::nadirPose(world, 40.0, 35.0, 50.0)
+                                            : synthetic::tiltedPose(world, -20.0, -60.0, 50.0, tilt);
+    const synthetic::DepthFrame frame = synthetic::renderDepth(world, cam, pose, 2);
+    for (double leaf : {0.1, 0.25, 0.5, 1.0}) {
+      for (bool color : {true, false}) {
+        FilterOptions o;
+        o.voxel_leaf_m = leaf;
+        o.min_z_m = -5.0;  // config/map_server.yaml's box
+        o.max_z_m = 120.0;
+        std::ostringstream what;
+        what << "tilt " << tilt << " leaf " << leaf << (color ? " rgb8" : " no colour");
+        FilterStats st;
+        DepthFrontEndPath path;
+        checkFusedEqualsThreeStages(frame.depthView(), color ? frame.colorView() : ColorImageView(), frame.k, pose,
+                                    o, what.str(), &st, &path);
+        CHECK_MSG(st.points_in > 200000 && st.points_out > 1000, what.str() << ": " << st.points_in);
+        (path == DepthFrontEndPath::kOnePass ? one_pass : three_stages) += 1;
+        ++frames;
+      }
+    }
+  }
+  CHECK_MSG(frames == 24 && one_pass >= 18 && three_stages >= 2, one_pass << " one-pass, " << three_stages
+                                                                          << " three-stage frames");
+}
+
+TEST(fused_depth_front_end_edge_cases) {
+  const PinholeIntrinsics k{40.0, 40.0, 7.5, 5.5};
+  FilterOptions fast;
+  fast.voxel_leaf_m = 0.5;
+  auto blank = [](uint32_t w, uint32_t h) {
+    TestImages im;
+    im.width = w;
+    im.height = h;
+    im.depth_step = 4 * w;
+    im.depth.resize(im.depth_step * h);
+    for (uint32_t v = 0; v < h; ++v)
+      for (uint32_t u = 0; u < w; ++u) im.setDepth(u, v, std::nanf(""));
+    im.color_step = 4 * w;  // room for rgba
+    im.color.assign(im.color_step * h, 77);
+    return im;
+  };
+  const ColorImageView none;
+  // No return at all, and a single one (voxelGridFilter leaves clouds under two points alone: a point whose
+  // map x is -0.0 stays -0.0, where summing it into a leaf from +0.0 would give +0.0).
+  TestImages im = blank(16, 12);
+  FilterStats st;
+  CHECK(checkFusedEqualsThreeStages(im.depthView(), none, k, RigidTransform(), fast, "no returns", &st) == 0);
+  CHECK(st.points_in == 0);
+  RigidTransform flip;  // row 0 = (-1, -0, -0), t0 = -0: pixel (cx, cy) maps to x = -0.0
+  flip.r[0][0] = -1.0;
+  flip.r[0][1] = -0.0;
+  flip.r[0][2] = -0.0;
+  flip.t[0] = -0.0;
+  TestImages one = blank(16, 12);
+  one.setDepth(7, 5, 3.0f);
+  ColoredPoints single;
+  FilterStats st1;
+  PinholeIntrinsics centred{40.0, 40.0, 7.0, 5.0};
+  filterDepthImage(one.depthView(), one.colorView(ColorEncoding::kRgb8), centred, flip, fast, single, st1);
+  CHECK(single.size() == 1 && std::signbit(single.xyz[0](0)));
+  checkFusedEqualsThreeStages(one.depthView(), one.colorView(ColorEncoding::kRgb8), centred, flip, fast, "one point");
+  one.setDepth(3, 3, 3.0f);
+  checkFusedEqualsThreeStages(one.depthView(), one.colorView(ColorEncoding::kBgra8), centred, flip, fast, "two points");
+  // Extents that overflow PCL's int32 voxel index while every point lies in the fused pass's window (2048
+  // columns of 4 mm: +-4.1 m; the points span +-4 m x 3.3 m x 9 m, 3.7e9 leaves): skipped, the filtered points
+  // themselves.
+  TestImages deep = blank(64, 48);
+  for (uint32_t v = 0; v < 48; ++v)
+    for (uint32_t u = 0; u < 64; ++u) deep.setDepth(u, v, 1.0f + 9.0f * static_cast<float>(v * 64 + u) / 3071.0f);
+  const PinholeIntrinsics wide{78.75, 78.75, 31.5, 23.5};
+  FilterOptions tiny;
+  tiny.voxel_leaf_m = 0.004;
+  checkFusedEqualsThreeStages(deep.depthView(), deep.colorView(ColorEncoding::kRgb8), wide, RigidTransform(), tiny,
+                              "index overflow", &st);
+  DepthFrontEndPath path;
+  checkFusedEqualsThreeStages(deep.depthView(), none, wide, RigidTransform(), tiny, "index overflow", &st, &path);
+  CHECK_MSG(st.voxel_grid_skipped && st.points_out == 64 * 48 && path == DepthFrontEndPath::kOnePass,
+            "skipped " << st.voxel_grid_skipped << ", " << st.points_out << " points, path " << static_cast<int>(path));
+  // Points beyond the window (here 600 m to each side at 0.25 m leaves: 4800 x 3584 columns, too wide for the
+  // cloud path's column map too, which sorts instead, and 10 m deep so that PCL's index does not overflow)
+  // take the three-stage path: the same result.
+  TestImages far = blank(64, 48);
+  for (uint32_t v = 0; v < 48; ++v)
+    for (uint32_t u = 0; u < 64; ++u) far.setDepth(u, v, (u + v) % 7 == 0 ? 600.0f : 590.0f + 0.01f * u);
+  const PinholeIntrinsics fov90{31.5, 31.5, 31.5, 23.5};
+  FilterOptions quarter;
+  quarter.voxel_leaf_m = 0.25;
+  CHECK(checkFusedEqualsThreeStages(far.depthView(), far.colorView(ColorEncoding::kRgb8), fov90, RigidTransform(),
+                                    quarter, "beyond the window", &st, &path) > 100);
+  CHECK(!st.voxel_grid_skipped && path == DepthFrontEndPath::kThreeStages);
+  // A sensor or points beyond 2^29 leaves, and points that overflow float in the map frame.
+  RigidTransform remote;
+  remote.t[0] = 1e9;
+  checkFusedEqualsThreeStages(far.depthView(), none, fov90, remote, quarter, "remote sensor", &st, &path);
+  CHECK(path == DepthFrontEndPath::kThreeStages);
+  TestImages huge = blank(16, 12);
+  huge.setDepth(2, 2, 3e38f);
+  huge.setDepth(3, 2, 5.0f);
+  huge.setDepth(4, 2, 5.5f);
+  RigidTransform stretch;
+  stretch.r[2][2] = 2.0;  // not a rotation: z doubles, beyond float
+  checkFusedEqualsThreeStages(huge.depthView(), none, k, stretch, quarter, "map-frame overflow", &st, &path);
+  CHECK(st.voxel_grid_skipped && path == DepthFrontEndPath::kThreeStages);
+  // The views are checked by the core too.
+  TestImages bad = blank(16, 12);
+  DepthImageView short_step = bad.depthView();
+  short_step.step_bytes = 60;
+  ColoredPoints out;
+  checkThrows([&] { filterDepthImage(short_step, none, k, RigidTransform(), fast, out, st); }, "short step");
+  checkThrows([&] { filterDepthImage(bad.depthView(), none, PinholeIntrinsics{0.0, 1.0, 0.0, 0.0}, RigidTransform(),
+                                     fast, out, st); },
+              "zero focal length");
+  checkThrows([&] { filterDepthImage(bad.depthView(), ColorImageView{bad.color.data(), 47, ColorEncoding::kRgb8}, k,
+                                     RigidTransform(), fast, out, st); },
+              "short colour step");
+}
+
+TEST(fused_depth_insert_equals_cloud_insert) {
+  // Mapper::insertFiltered on the fused front end's output builds the same map as Mapper::insert on the
+  // back-projected cloud (what the node did for depth images before), with the same stats.
+  static const synthetic::World world{synthetic::WorldOptions{120.0, 0.25, 3, 4.0, 20.0}};
+  synthetic::Camera cam;
+  cam.width = 160;
+  cam.height = 120;
+  MapperConfig c = config(Backend::kOctomap, 0.5, InsertMode::kTruncated);
+  c.filter.voxel_leaf_m = 0.5;
+  c.filter.min_z_m = -5.0;
+  Mapper a(c);
+  Mapper b(c);
+  for (int i = 0; i < 3; ++i) {
+    const RigidTransform pose = synthetic::tiltedPose(world, 30.0 + 6.0 * i, 25.0, 20.0, 10.0 * i);
+    const synthetic::DepthFrame frame = synthetic::renderDepth(world, cam, pose, 1);
+    ColoredPoints optical;
+    depthToOpticalPoints(frame.depthView(), frame.colorView(), frame.k, optical);
+    const InsertStats sa = a.insert(optical, pose, 1.0 + i);
+    ColoredPoints filtered;
+    FilterStats fs;
+    filterDepthImage(frame.depthView(), frame.colorView(), frame.k, pose, c.filter, filtered, fs);
+    const InsertStats sb = b.insertFiltered(filtered, fs, 0.0, pose.origin(), 1.0 + i);
+    CHECK(sa.filter.points_in == sb.filter.points_in && sa.filter.points_out == sb.filter.points_out);
+    CHECK(sa.points_inserted == sb.points_inserted && sa.hits == sb.hits && sa.misses == sb.misses);
+    CHECK(sb.points_inserted < sb.filter.points_in && sb.points_inserted > 100);
+  }
+  checkSameVoxels(a.map(), b.map());
+  checkSameLayers(a.layers(), b.layers());
 }
 
 TEST(config_validation) {

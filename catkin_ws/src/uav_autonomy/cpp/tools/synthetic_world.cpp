@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 namespace uav_mapping {
@@ -131,13 +132,36 @@ RigidTransform nadirPose(const World& world, double x, double y, double agl_m) {
   return t;
 }
 
-ColoredPoints render(const World& world, const Camera& cam, const RigidTransform& tf, int threads) {
+RigidTransform tiltedPose(const World& world, double x, double y, double agl_m, double tilt_deg) {
+  const double c = std::cos(tilt_deg * M_PI / 180.0);
+  const double s = std::sin(tilt_deg * M_PI / 180.0);
+  RigidTransform t;  // columns: optical x = east, y = (0, -c, -s), z = (0, s, -c)
+  t.r[0][0] = 1;
+  t.r[0][1] = 0;
+  t.r[0][2] = 0;
+  t.r[1][0] = 0;
+  t.r[1][1] = -c;
+  t.r[1][2] = s;
+  t.r[2][0] = 0;
+  t.r[2][1] = -s;
+  t.r[2][2] = -c;
+  t.t[0] = x;
+  t.t[1] = y;
+  t.t[2] = world.height(x, y) + agl_m;
+  return t;
+}
+
+namespace {
+
+/// Ray marches every pixel: z-depth (-1 where nothing is hit within range) and colour, row-major.
+void march(const World& world, const Camera& cam, const RigidTransform& tf, int threads, std::vector<float>& depth,
+           std::vector<std::array<uint8_t, 3>>& col) {
   const double f = 0.5 * cam.width / std::tan(0.5 * cam.hfov_deg * M_PI / 180.0);
   const double cx = 0.5 * cam.width;
   const double cy = 0.5 * cam.height;
   const std::size_t n = static_cast<std::size_t>(cam.width) * cam.height;
-  std::vector<float> depth(n, -1.0f);
-  std::vector<std::array<uint8_t, 3>> col(n);
+  depth.assign(n, -1.0f);
+  col.assign(n, {0, 0, 0});
   tbb::task_arena arena(std::max(1, threads));
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<int>(0, cam.height), [&](const tbb::blocked_range<int>& rows) {
@@ -181,6 +205,37 @@ ColoredPoints render(const World& world, const Camera& cam, const RigidTransform
       }
     });
   });
+}
+
+}  // namespace
+
+DepthFrame renderDepth(const World& world, const Camera& cam, const RigidTransform& tf, int threads) {
+  std::vector<float> depth;
+  std::vector<std::array<uint8_t, 3>> col;
+  march(world, cam, tf, threads, depth, col);
+  DepthFrame frame;
+  frame.width = static_cast<uint32_t>(cam.width);
+  frame.height = static_cast<uint32_t>(cam.height);
+  frame.depth_m.resize(depth.size());
+  frame.rgb.resize(3 * depth.size());
+  for (std::size_t i = 0; i < depth.size(); ++i) {
+    frame.depth_m[i] = depth[i] < 0.0f ? std::numeric_limits<float>::quiet_NaN() : depth[i];
+    for (int c = 0; c < 3; ++c) frame.rgb[3 * i + c] = col[i][c];
+  }
+  // march's ray of pixel u is (u + 0.5 - width / 2) / f: the centre of pixel u, at u in K's convention.
+  const double f = 0.5 * cam.width / std::tan(0.5 * cam.hfov_deg * M_PI / 180.0);
+  frame.k = PinholeIntrinsics{f, f, 0.5 * cam.width - 0.5, 0.5 * cam.height - 0.5};
+  return frame;
+}
+
+ColoredPoints render(const World& world, const Camera& cam, const RigidTransform& tf, int threads) {
+  const double f = 0.5 * cam.width / std::tan(0.5 * cam.hfov_deg * M_PI / 180.0);
+  const double cx = 0.5 * cam.width;
+  const double cy = 0.5 * cam.height;
+  const std::size_t n = static_cast<std::size_t>(cam.width) * cam.height;
+  std::vector<float> depth;
+  std::vector<std::array<uint8_t, 3>> col;
+  march(world, cam, tf, threads, depth, col);
   ColoredPoints out;
   out.xyz.reserve(n);
   out.rgb.reserve(n);

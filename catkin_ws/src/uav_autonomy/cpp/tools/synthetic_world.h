@@ -4,6 +4,7 @@
 #pragma once
 
 #include <uav_mapping/cloud_filter.h>
+#include <uav_mapping/depth_filter.h>
 #include <uav_mapping/frame_update.h>
 
 #include <cstdint>
@@ -47,6 +48,29 @@ struct Camera {
 
 /// A nadir-looking camera pose: optical z down, x east, y south, at (x, y) and `agl_m` above the surface.
 RigidTransform nadirPose(const World& world, double x, double y, double agl_m);
+
+/// A camera looking `tilt_deg` away from nadir towards +y (north): optical x east, at (x, y) `agl_m` above the
+/// surface. 0 is nadirPose's orientation; 60 sees the terrain up to the camera's range ahead.
+RigidTransform tiltedPose(const World& world, double x, double y, double agl_m, double tilt_deg);
+
+/// One frame as an rgbd camera driver publishes it: a z-depth image (32FC1 metres, NaN = no return, row-major),
+/// the registered rgb8 image and the intrinsics (pixel centres at integer (u, v), cx = (width - 1) / 2).
+struct DepthFrame {
+  uint32_t width = 0;
+  uint32_t height = 0;
+  std::vector<float> depth_m;
+  std::vector<uint8_t> rgb;
+  PinholeIntrinsics k;
+
+  DepthImageView depthView() const {
+    return DepthImageView{reinterpret_cast<const uint8_t*>(depth_m.data()), width, height, 4 * std::size_t{width},
+                          DepthEncoding::kFloat32Metres};
+  }
+  ColorImageView colorView() const { return ColorImageView{rgb.data(), 3 * std::size_t{width}, ColorEncoding::kRgb8}; }
+};
+
+/// Renders one depth + colour frame by ray marching the height field.
+DepthFrame renderDepth(const World& world, const Camera& camera, const RigidTransform& map_from_optical, int threads);
 
 /// Renders one frame: points in the optical frame (finite only, like the sim bridge's clouds) with colours.
 ColoredPoints render(const World& world, const Camera& camera, const RigidTransform& map_from_optical, int threads);

@@ -53,6 +53,11 @@ class Mapper {
 
   /// Full pipeline for a sensor-frame cloud: transform, filters, voxel grid, insertion at stamp_s.
   InsertStats insert(const ColoredPoints& sensor_points, const RigidTransform& map_from_sensor, double stamp_s);
+  /// Insertion of points a front end has already transformed, filtered and downsampled with config().filter
+  /// (e.g. filterDepthImage, which fuses those steps for depth images): `filter` and `filter_ms` are reported
+  /// as the frame's, exactly as insert() reports its own.
+  InsertStats insertFiltered(const ColoredPoints& map_points, const FilterStats& filter, double filter_ms,
+                             const Point3& origin, double stamp_s);
   /// Insertion only, for points already in the map frame (no filters): what the benchmark times.
   InsertStats insertMapPoints(const ColoredPoints& map_points, const Point3& origin, double stamp_s);
 
