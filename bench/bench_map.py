@@ -6,14 +6,20 @@ C++ driver ``map_bench`` (built with the node) inserts the same frames with ever
 with stock ``OcTree::insertPointCloud`` (what octomap_server uses) as the baseline in the same process, and checks
 that full ray clearing leaves exactly stock's occupied and free voxels (same log-odds).
 
+The same frames as depth + colour images measure the rgbd front end (back-projection, transform, filters, voxel
+grid): the node's fused one-pass ``filterDepthImage`` against the three stages it replaced (same frames, same
+process, outputs checked bit for bit), and the node's whole rgbd pipeline with either.
+
 Then a lawnmower over the whole 1 km x 1 km default world at 0.5 m measures the memory of a 1 km^2 map.
 
-    python bench/bench_map.py            # everything (a few minutes on 2 cores)
-    python bench/bench_map.py --quick    # fewer frames, no 1 km^2 coverage
+    python bench/bench_map.py                  # everything (a few minutes on 2 cores)
+    python bench/bench_map.py --quick          # fewer frames, no 1 km^2 coverage
+    python bench/bench_map.py --frontend-only  # only the rgbd front end and pipeline (~1 min)
 
 Targets: surface mode <= 20 ms per frame at 0.5 m; full ray clearing >= 2x faster than stock with identical
 occupied and free keys; a 1 km^2 map at 0.5 m < 1 GB (checked for every mode; full ray clearing stores ~50 m of
-free air under every column and does not meet it).
+free air under every column and does not meet it); the fused rgbd front end <= 0.65 x the three stages with
+bit-identical output.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +40,7 @@ import numpy as np
 from benchlib import record
 
 from uav_sim_bridge.core.camera import CameraModel, depth_to_points, look_at
+from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.world import World, load_or_generate
 from uav_sim_bridge.core.world_config import load_world_config
 from uav_sim_bridge.render import Renderer
@@ -44,6 +52,8 @@ CACHE = Path("~/.cache/uav_test_range/worlds").expanduser()
 AGL_M = 50.0
 TRUNCATION_M = "1.0"  # config/map_server.yaml's truncation_m
 END_OF_STREAM = 2**64 - 1
+END_OF_DEPTH_STREAM = 2**32 - 1
+NODE_BOX_Z_M = ("-100", "1000")  # config/map_server.yaml's pointcloud_min_z / pointcloud_max_z
 
 
 def frame_poses_line(world: World, n: int, spacing_m: float) -> list[tuple[float, float, float]]:
@@ -65,20 +75,59 @@ def frame_poses_lawnmower(world: World, spacing_m: float, row_m: float) -> list[
     return poses
 
 
-def render_stream(world: World, poses: Iterable[tuple[float, float, float]]) -> Iterator[bytes]:
-    """The frames in map_bench's stream format: origin, stamp, n, xyz (map frame, float32), rgb (uint8)."""
+@dataclass(frozen=True)
+class RenderedFrame:
+    eye_m: tuple[float, float, float]
+    stamp_s: float
+    cam: CameraModel
+    t_map_optical: RigidTransform
+    depth_m: np.ndarray  # (H, W) float32, NaN = no return
+    color_rgb: np.ndarray  # (H, W, 3) uint8
+
+
+def render_frames(world: World, poses: Iterable[tuple[float, float, float]]) -> Iterator[RenderedFrame]:
+    """640 x 480, 90 deg nadir frames at the given eye positions."""
     renderer = Renderer(world)
     cam = CameraModel.simple(640, 480, 90.0, name="nadir")
-    yield b"UAVFRAMES1\n"
     for i, (x, y, z) in enumerate(poses):
         t_map_optical = look_at([x, y, z], [x, y, z - AGL_M])
         frame = renderer.render(cam, t_map_optical)
-        pts = depth_to_points(frame.depth_m, cam.k).reshape(-1, 3)
+        yield RenderedFrame((x, y, z), 10.0 + 0.5 * i, cam, t_map_optical, frame.depth_m, frame.color_rgb)
+
+
+def cloud_stream(frames: Iterable[RenderedFrame]) -> Iterator[bytes]:
+    """The frames in map_bench's stream format: origin, stamp, n, xyz (map frame, float32), rgb (uint8)."""
+    yield b"UAVFRAMES1\n"
+    for f in frames:
+        pts = depth_to_points(f.depth_m, f.cam.k).reshape(-1, 3)
         ok = np.all(np.isfinite(pts), axis=1)
-        xyz = t_map_optical.apply(pts[ok]).astype(np.float32)
-        rgb = frame.color_rgb.reshape(-1, 3)[ok].astype(np.uint8)
-        yield struct.pack("<4dQ", x, y, z, 10.0 + 0.5 * i, len(xyz)) + xyz.tobytes() + rgb.tobytes()
+        xyz = f.t_map_optical.apply(pts[ok]).astype(np.float32)
+        rgb = f.color_rgb.reshape(-1, 3)[ok].astype(np.uint8)
+        yield struct.pack("<4dQ", *f.eye_m, f.stamp_s, len(xyz)) + xyz.tobytes() + rgb.tobytes()
     yield struct.pack("<4dQ", 0.0, 0.0, 0.0, 0.0, END_OF_STREAM)
+
+
+def depth_stream(frames: Iterable[RenderedFrame]) -> Iterator[bytes]:
+    """The frames as map_bench's depth stream: size, K, T_map_optical, stamp, depth (float32), rgb (uint8)."""
+    yield b"UAVDEPTH1\n"
+    for f in frames:
+        depth = np.ascontiguousarray(f.depth_m, dtype="<f4")
+        rgb = np.ascontiguousarray(f.color_rgb, dtype=np.uint8)
+        h, w = depth.shape
+        head = struct.pack(
+            "<2I4d9d3dd",
+            w,
+            h,
+            f.cam.fx,
+            f.cam.fy,
+            f.cam.cx,
+            f.cam.cy,
+            *f.t_map_optical.rotation.ravel(),
+            *f.t_map_optical.translation_m,
+            f.stamp_s,
+        )
+        yield head + depth.tobytes() + rgb.tobytes()
+    yield struct.pack("<2I", END_OF_DEPTH_STREAM, END_OF_DEPTH_STREAM)
 
 
 def write_stream(path: Path, chunks: Iterable[bytes]) -> int:
@@ -90,9 +139,10 @@ def write_stream(path: Path, chunks: Iterable[bytes]) -> int:
     return n - 2
 
 
-def run_bench(command: str, frames_file: Path, **options: object) -> list[dict[str, Any]]:
-    """Runs ``map_bench COMMAND --frames-file F --key value ...``; returns its JSON lines."""
-    args = [command, "--frames-file", str(frames_file), "--truncation", TRUNCATION_M]
+def run_bench(command: str, frames_file: Path, *, depth: bool = False, **options: object) -> list[dict[str, Any]]:
+    """Runs ``map_bench COMMAND --frames-file F --key value ...`` (depth: ``--depth-file F``); returns its JSON
+    lines."""
+    args = [command, "--depth-file" if depth else "--frames-file", str(frames_file), "--truncation", TRUNCATION_M]
     for key, value in options.items():
         args += [f"--{key}", str(value)]
     proc = subprocess.run([str(BINARY), *args], capture_output=True, text=True, check=False, timeout=3600)
@@ -182,6 +232,68 @@ def pipeline_benchmark(frames_file: Path, n: int) -> None:
     )
 
 
+def rgbd_frontend_benchmark(depth_file: Path, n: int) -> None:
+    """The rgbd front end at the node's defaults (0.5 m leaves, colour, z box): fused against three stages."""
+    (row,) = run_bench(
+        "frontend",
+        depth_file,
+        depth=True,
+        frames=n,
+        leaf="0.5",
+        repeat=7,
+        **{"min-z": NODE_BOX_Z_M[0], "max-z": NODE_BOX_Z_M[1]},
+    )
+    fused_ms = float(row["median_fused_ms"])
+    three_ms = float(row["median_three_stages_ms"])
+    identical = bool(row["identical"])
+    record(
+        "map.rgbd_frontend_0.5m.identical_to_three_stages",
+        1.0 if identical else 0.0,
+        "bool",
+        1.0,
+        target="1",
+        met=identical,
+    )
+    record(
+        "map.rgbd_frontend_0.5m.fused",
+        fused_ms,
+        "ms/frame",
+        three_ms,
+        target="<= 0.65 x three stages, identical",
+        met=fused_ms <= 0.65 * three_ms and identical,
+        notes=f"filterDepthImage (one pass: back-projection, transform, filters, 0.5 m voxel grid) of "
+        f"{row['frames']} rendered 640x480 depth + rgb8 frames, {row['points_in_per_frame']} -> "
+        f"{row['points_out_per_frame']} points, {row['one_pass_frames']} of {row['frames']} in one pass; baseline = "
+        f"the three stages on the same frames, interleaved ({row['median_backproject_ms']:.1f} back-projection + "
+        f"{row['median_transform_filter_ms']:.1f} transform and filters + {row['median_voxel_grid_ms']:.1f} voxel "
+        f"grid ms); median of {row['repeat']} rounds; bit-identical points and stats: {identical}",
+    )
+    (row,) = run_bench(
+        "pipeline",
+        depth_file,
+        depth=True,
+        res=0.5,
+        frames=n,
+        backend="octomap",
+        mode="truncated",
+        leaf="0.5",
+        repeat=3,
+        **{"min-z": NODE_BOX_Z_M[0], "max-z": NODE_BOX_Z_M[1]},
+    )
+    record(
+        "map.0.5m.octomap.truncated.rgbd_node_pipeline",
+        float(row["median_total_ms_fused"]),
+        "ms/frame",
+        float(row["median_total_ms_three_stages"]),
+        notes=f"depth + colour images in: fused front end ({row['median_filter_ms_fused']:.1f} ms) + insertion "
+        f"({row['median_insert_ms_fused']:.1f} ms); baseline = back-projection + Mapper::insert, what the node did "
+        f"before (front end {row['median_filter_ms_three_stages']:.1f} ms + insertion "
+        f"{row['median_insert_ms_three_stages']:.1f} ms), the two mappers fed in turn in one process, "
+        f"{row['repeat']} x {row['frames']} frames; {row['points_in_per_frame']} -> "
+        f"{row['points_inserted_per_frame']} points; identical maps: {row['identical_maps']}",
+    )
+
+
 def coverage_benchmark(frames_file: Path, configs: list[tuple[str, str]]) -> None:
     for backend, mode in configs:
         (row,) = run_bench("coverage", frames_file, res=0.5, backend=backend, mode=mode)
@@ -205,6 +317,7 @@ def coverage_benchmark(frames_file: Path, configs: list[tuple[str, str]]) -> Non
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer frames, no 1 km^2 coverage")
+    parser.add_argument("--frontend-only", action="store_true", help="only the rgbd front end and pipeline")
     args = parser.parse_args(argv)
     if not BINARY.exists():
         print(f"{BINARY} is missing: run make build", file=sys.stderr)
@@ -212,17 +325,22 @@ def main(argv: list[str]) -> int:
     world = load_or_generate(load_world_config(WORLD), CACHE)
     with tempfile.TemporaryDirectory(prefix="bench_map_") as tmp:
         line = Path(tmp) / "line.frames"
+        line_depth = Path(tmp) / "line.depth"
         t0 = time.monotonic()
-        n = write_stream(line, render_stream(world, frame_poses_line(world, 5, 20.0)))
+        rendered = list(render_frames(world, frame_poses_line(world, 5, 20.0)))
+        n = write_stream(line, cloud_stream(rendered))
+        write_stream(line_depth, depth_stream(rendered))
         print(f"rendered {n} frames of the default world in {time.monotonic() - t0:.1f} s", flush=True)
         counts = {1.0: 3, 0.5: 3, 0.25: 2} if args.quick else {1.0: 5, 0.5: 5, 0.25: 3}
-        frames_benchmark(line, counts)
-        pipeline_benchmark(line, counts[0.5])
-        if args.quick:
+        if not args.frontend_only:
+            frames_benchmark(line, counts)
+            pipeline_benchmark(line, counts[0.5])
+        rgbd_frontend_benchmark(line_depth, counts[0.5])
+        if args.quick or args.frontend_only:
             return 0
         cover = Path(tmp) / "cover.frames"
         t0 = time.monotonic()
-        n = write_stream(cover, render_stream(world, frame_poses_lawnmower(world, 50.0, 60.0)))
+        n = write_stream(cover, cloud_stream(render_frames(world, frame_poses_lawnmower(world, 50.0, 60.0))))
         print(f"rendered {n} lawnmower frames in {time.monotonic() - t0:.1f} s", flush=True)
         configs = [(b, m) for m in ("truncated", "surface", "full") for b in ("octomap", "openvdb")]
         coverage_benchmark(cover, configs)

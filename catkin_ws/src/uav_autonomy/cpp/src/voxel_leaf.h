@@ -1,5 +1,6 @@
-// Internal to the core (not installed): the voxel grid's per-leaf arithmetic, shared by the cloud path
-// (cloud_filter.cpp) and the fused depth-image path (depth_filter.cpp) so both sum and divide alike.
+// Internal to the core (not installed): the voxel grid's leaf arithmetic, shared by the cloud path
+// (cloud_filter.cpp) and the fused depth-image path (depth_filter.cpp) so that both find the same leaves and
+// give up on the same clouds.
 #pragma once
 
 #include <cmath>
@@ -15,7 +16,8 @@ inline int64_t floorToInt(float v) {
   return i - static_cast<int64_t>(v < static_cast<float>(i));
 }
 
-/// One voxel-grid leaf: its points' float sums in the order they were added, and its place in its column's list.
+/// One voxel-grid leaf of the cloud path: its points' float sums in the order they were added, and its place in
+/// its column's list (the fused path's FusedLeaf sums colours as integers).
 struct LeafSum {
   int32_t iz;
   uint32_t next;  // next leaf of the same column, or kNoLeaf

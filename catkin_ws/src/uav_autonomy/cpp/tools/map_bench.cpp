@@ -6,17 +6,31 @@
 //       OcTree::insertPointCloud (octomap_server's insertion) on the same frames as the baseline, and whether
 //       full ray clearing gives exactly stock's set of occupied and free keys (and log-odds).
 //   map_bench pipeline --res 0.5 --frames 5 --mode surface --leaf 0.5 [--backend octomap] [--truncation 3]
-//                      [--voxel fast|pcl]
+//                      [--voxel fast|pcl] [--min-z -inf] [--max-z inf]
 //       Time of the whole Mapper::insert (transform, filters, voxel grid, insertion).
+//       With --depth-file F (or --input depth: synthetic depth frames) [--repeat 3]: depth images in, into two
+//       mappers in turn, one through the fused rgbd front end (filterDepthImage + Mapper::insertFiltered, what
+//       the node does), one through the three stages (depthToOpticalPoints + Mapper::insert); filter and total
+//       times include the back-projection; whether both maps end up identical.
+//   map_bench frontend --frames 5 --leaf 0.5 [--depth-file F] [--repeat 5] [--voxel fast|pcl] [--min-range -1]
+//                      [--min-z -inf] [--max-z inf]
+//       The rgbd front end alone on the same depth frames: the three stages (back-projection, transform +
+//       filters, voxel grid; each timed) against the fused one-pass filterDepthImage, interleaved, and whether
+//       their outputs are bit-identical.
 //   map_bench coverage --res 0.5 --backend octomap --mode surface --side 1000 [--spacing 20] [--row 80]
 //       Lawnmower over a side x side square at 50 m AGL; map memory and process RSS at the end.
 //
-// Frames come from the built-in synthetic world unless --frames FILE (or --frames - for stdin) gives rendered
+// Frames come from the built-in synthetic world unless --frames-file FILE (or - for stdin) gives rendered
 // ones in the stream format below (bench/bench_map.py writes it from the sim bridge's renderer):
 //   "UAVFRAMES1\n", then per frame: float64 origin[3], float64 stamp_s, uint64 n, float32 xyz[n][3] (map frame),
 //   uint8 rgb[n][3]; a frame with n = 2^64 - 1 ends the stream.
+// Depth frames (--depth-file) likewise:
+//   "UAVDEPTH1\n", then per frame: uint32 width, uint32 height, float64 fx, fy, cx, cy, float64 r[3][3] and t[3]
+//   (map <- optical, row-major), float64 stamp_s, float32 depth_m[height][width] (NaN: no return),
+//   uint8 rgb[height][width][3]; a frame with width = height = 2^32 - 1 ends the stream.
 #include "synthetic_world.h"
 
+#include <uav_mapping/depth_filter.h>
 #include <uav_mapping/mapper.h>
 #include <uav_mapping/octree_map.h>
 
@@ -27,6 +41,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -136,6 +151,81 @@ class FrameStream {
   std::ifstream file_;
   std::istream* in_ = nullptr;
 };
+
+struct DepthInputFrame {
+  synthetic::DepthFrame image;
+  RigidTransform pose;  // map <- optical
+  double stamp_s = 0.0;
+};
+
+/// Reads depth frames in the stream format (see the header comment); false at the end of the stream.
+class DepthStream {
+ public:
+  explicit DepthStream(const std::string& path) : file_(path, std::ios::binary) {
+    if (!file_) throw std::runtime_error("cannot open " + path);
+    std::string magic;
+    std::getline(file_, magic);
+    if (magic != "UAVDEPTH1") throw std::runtime_error("not a depth frame stream: " + path);
+  }
+  bool next(DepthInputFrame& f) {
+    uint32_t size[2];
+    double head[4 + 9 + 3 + 1];
+    if (!file_.read(reinterpret_cast<char*>(size), sizeof(size))) return false;
+    if (size[0] == ~0U && size[1] == ~0U) return false;
+    if (static_cast<uint64_t>(size[0]) * size[1] > 100000000ULL) throw std::runtime_error("depth stream: absurd size");
+    if (!file_.read(reinterpret_cast<char*>(head), sizeof(head))) throw std::runtime_error("depth stream truncated");
+    synthetic::DepthFrame& im = f.image;
+    im.width = size[0];
+    im.height = size[1];
+    im.k = PinholeIntrinsics{head[0], head[1], head[2], head[3]};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) f.pose.r[i][j] = head[4 + 3 * i + j];
+    for (int i = 0; i < 3; ++i) f.pose.t[i] = head[13 + i];
+    f.stamp_s = head[16];
+    const std::size_t n = static_cast<std::size_t>(im.width) * im.height;
+    im.depth_m.resize(n);
+    im.rgb.resize(3 * n);
+    if (!file_.read(reinterpret_cast<char*>(im.depth_m.data()), static_cast<std::streamsize>(4 * n)) ||
+        !file_.read(reinterpret_cast<char*>(im.rgb.data()), static_cast<std::streamsize>(3 * n)))
+      throw std::runtime_error("depth stream truncated");
+    return true;
+  }
+
+ private:
+  std::ifstream file_;
+};
+
+/// Depth frames from --depth-file, or rendered from the synthetic world (nadir, 50 m AGL, 20 m apart).
+std::vector<DepthInputFrame> loadDepthFrames(const std::map<std::string, std::string>& a, int n_frames, int threads,
+                                             std::string& source) {
+  std::vector<DepthInputFrame> frames;
+  if (a.count("depth-file")) {
+    DepthStream stream(a.at("depth-file"));
+    DepthInputFrame f;
+    while (static_cast<int>(frames.size()) < n_frames && stream.next(f)) frames.push_back(f);
+    source = "rendered depth frames from " + a.at("depth-file");
+    return frames;
+  }
+  synthetic::World world{synthetic::WorldOptions()};
+  synthetic::Camera cam;
+  for (int i = 0; i < n_frames; ++i) {
+    DepthInputFrame f;
+    f.pose = synthetic::nadirPose(world, 20.0 * i + 40.0, 35.0, 50.0);
+    f.image = synthetic::renderDepth(world, cam, f.pose, threads);
+    f.stamp_s = 10.0 + 0.5 * i;
+    frames.push_back(std::move(f));
+  }
+  source = "synthetic heightfield depth frames (tools/synthetic_world.cpp)";
+  return frames;
+}
+
+bool sameFiltered(const ColoredPoints& a, const FilterStats& sa, const ColoredPoints& b, const FilterStats& sb) {
+  return a.size() == b.size() && a.rgb == b.rgb &&
+         (a.size() == 0 || std::memcmp(a.xyz.data(), b.xyz.data(), a.size() * sizeof(Point3)) == 0) &&
+         sa.points_in == sb.points_in && sa.nonfinite == sb.nonfinite && sa.too_close == sb.too_close &&
+         sa.outside_box == sb.outside_box && sa.points_out == sb.points_out &&
+         sa.voxel_grid_skipped == sb.voxel_grid_skipped;
+}
 
 std::vector<Frame> makeFrames(const synthetic::World& world, int count, double spacing_m, double agl_m, int threads) {
   std::vector<Frame> frames;
@@ -288,6 +378,153 @@ int runFrames(const std::map<std::string, std::string>& a) {
   return 0;
 }
 
+/// The pipeline on depth frames, both ways in one process: mapper "fused" gets the node's rgbd path
+/// (filterDepthImage + Mapper::insertFiltered), mapper "three_stages" what the node did before
+/// (depthToOpticalPoints + Mapper::insert), frame by frame in turn (which goes first alternates per round), the
+/// frame sequence `repeat` times over. Both maps must end up identical.
+int runDepthPipeline(const std::map<std::string, std::string>& a, const MapperConfig& cfg, int n_frames, int threads) {
+  std::string source;
+  const std::vector<DepthInputFrame> frames = loadDepthFrames(a, n_frames, threads, source);
+  const int repeat = std::max(1, std::stoi(arg(a, "repeat", "3")));
+  Mapper fused_mapper(cfg);
+  Mapper three_mapper(cfg);
+  struct Times {
+    std::vector<double> total, filter, insert;
+  } fused_t, three_t;
+  std::size_t pts_in = 0, pts_out = 0;
+  ColoredPoints points;
+  auto record = [](Times& t, const InsertStats& st) {
+    t.total.push_back(st.total_ms);
+    t.filter.push_back(st.filter_ms);
+    t.insert.push_back(st.total_ms - st.filter_ms);
+  };
+  for (int round = 0; round < repeat; ++round) {
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      const DepthInputFrame& f = frames[i];
+      const double stamp_s = f.stamp_s + 1000.0 * round;
+      auto runFused = [&] {
+        FilterStats fs;
+        const auto t0 = Clock::now();
+        filterDepthImage(f.image.depthView(), f.image.colorView(), f.image.k, f.pose, cfg.filter, points, fs);
+        record(fused_t, fused_mapper.insertFiltered(points, fs, msSince(t0), f.pose.origin(), stamp_s));
+      };
+      auto runThree = [&] {
+        const auto t0 = Clock::now();
+        depthToOpticalPoints(f.image.depthView(), f.image.colorView(), f.image.k, points);
+        const double backproject_ms = msSince(t0);
+        InsertStats st = three_mapper.insert(points, f.pose, stamp_s);
+        st.filter_ms += backproject_ms;
+        st.total_ms += backproject_ms;
+        record(three_t, st);
+        if (round == 0) {
+          pts_in += st.filter.points_in;
+          pts_out += st.points_inserted;
+        }
+      };
+      if ((round + static_cast<int>(i)) % 2 == 0) {
+        runFused();
+        runThree();
+      } else {
+        runThree();
+        runFused();
+      }
+    }
+  }
+  const bool identical = fused_mapper.occupiedCells(cfg.resolution_m) == three_mapper.occupiedCells(cfg.resolution_m) &&
+                         fused_mapper.map().leafCount() == three_mapper.map().leafCount();
+  const std::size_t n = std::max<std::size_t>(1, frames.size());
+  std::cout << "{\"kind\": \"pipeline\", \"input\": \"depth\", \"backend\": \"" << toString(cfg.backend)
+            << "\", \"mode\": \"" << toString(cfg.mode) << "\", \"voxel\": \"" << toString(cfg.filter.voxel_impl)
+            << "\", \"res_m\": " << cfg.resolution_m << ", \"leaf_m\": " << cfg.filter.voxel_leaf_m
+            << ", \"frames\": " << frames.size() << ", \"repeat\": " << repeat;
+  for (const auto& [name, t] : {std::pair<const char*, const Times*>{"fused", &fused_t}, {"three_stages", &three_t}}) {
+    std::cout << ", \"median_total_ms_" << name << "\": " << median(t->total) << ", \"median_filter_ms_" << name
+              << "\": " << median(t->filter) << ", \"median_insert_ms_" << name << "\": " << median(t->insert);
+  }
+  std::cout << ", \"identical_maps\": " << (identical ? "true" : "false")
+            << ", \"points_in_per_frame\": " << pts_in / n << ", \"points_inserted_per_frame\": " << pts_out / n
+            << ", \"source\": \"" << source << "\"}" << std::endl;
+  return identical ? 0 : 3;
+}
+
+/// The rgbd front end alone: the three stages against the fused pass, same frames, interleaved.
+int runFrontend(const std::map<std::string, std::string>& a) {
+  const int n_frames = std::stoi(arg(a, "frames", "5"));
+  const int repeat = std::max(1, std::stoi(arg(a, "repeat", "5")));
+  const int threads = std::stoi(arg(a, "threads", "2"));
+  FilterOptions opt;
+  opt.voxel_leaf_m = std::stod(arg(a, "leaf", "0.5"));
+  opt.voxel_impl = voxelFilterImplFromString(arg(a, "voxel", "fast"));
+  opt.min_range_m = std::stod(arg(a, "min-range", "-1"));
+  opt.min_z_m = std::stod(arg(a, "min-z", "-inf"));
+  opt.max_z_m = std::stod(arg(a, "max-z", "inf"));
+  std::string source;
+  const std::vector<DepthInputFrame> frames = loadDepthFrames(a, n_frames, threads, source);
+  std::vector<double> three, backproject, transform, voxel, fused;
+  bool identical = true;
+  std::size_t pixels = 0, pts_in = 0, pts_out = 0, one_pass = 0;
+  ColoredPoints optical, ref, out;
+  // Round 0 warms the buffers up (first-frame allocations) and is not timed; odd rounds run the fused pass
+  // first, so that neither side always finds the caches as the other left them.
+  for (int round = 0; round <= repeat; ++round) {
+    for (const DepthInputFrame& f : frames) {
+      const DepthImageView depth = f.image.depthView();
+      const ColorImageView color = f.image.colorView();
+      FilterStats sr, sf;
+      double ms_b = 0.0, ms_t = 0.0, ms_v = 0.0, ms_f = 0.0;
+      DepthFrontEndPath path = DepthFrontEndPath::kThreeStages;
+      auto runThree = [&] {
+        const auto t0 = Clock::now();
+        depthToOpticalPoints(depth, color, f.image.k, optical);
+        const auto t1 = Clock::now();
+        transformAndFilter(optical, f.pose, opt, ref, sr);
+        const auto t2 = Clock::now();
+        voxelGridFilter(ref, opt.voxel_leaf_m, sr, opt.voxel_impl);
+        ms_b = std::chrono::duration<double, std::milli>(t1 - t0).count();
+        ms_t = std::chrono::duration<double, std::milli>(t2 - t1).count();
+        ms_v = msSince(t2);
+      };
+      auto runFused = [&] {
+        const auto t0 = Clock::now();
+        path = filterDepthImage(depth, color, f.image.k, f.pose, opt, out, sf);
+        ms_f = msSince(t0);
+      };
+      if (round % 2 == 1) {
+        runFused();
+        runThree();
+      } else {
+        runThree();
+        runFused();
+      }
+      if (round == 0) {
+        identical = identical && sameFiltered(out, sf, ref, sr);
+        pixels += static_cast<std::size_t>(depth.width) * depth.height;
+        pts_in += sr.points_in;
+        pts_out += sr.points_out;
+        one_pass += path == DepthFrontEndPath::kOnePass;
+        continue;
+      }
+      backproject.push_back(ms_b);
+      transform.push_back(ms_t);
+      voxel.push_back(ms_v);
+      three.push_back(ms_b + ms_t + ms_v);
+      fused.push_back(ms_f);
+    }
+  }
+  const std::size_t n = std::max<std::size_t>(1, frames.size());
+  std::cout << "{\"kind\": \"frontend\", \"frames\": " << frames.size() << ", \"repeat\": " << repeat
+            << ", \"leaf_m\": " << opt.voxel_leaf_m << ", \"voxel\": \"" << toString(opt.voxel_impl)
+            << "\", \"pixels_per_frame\": " << pixels / n << ", \"points_in_per_frame\": " << pts_in / n
+            << ", \"points_out_per_frame\": " << pts_out / n << ", \"one_pass_frames\": " << one_pass
+            << ", \"identical\": " << (identical ? "true" : "false")
+            << ", \"median_three_stages_ms\": " << median(three) << ", \"median_backproject_ms\": " << median(backproject)
+            << ", \"median_transform_filter_ms\": " << median(transform)
+            << ", \"median_voxel_grid_ms\": " << median(voxel) << ", \"median_fused_ms\": " << median(fused)
+            << ", \"three_stages_ms\": " << jsonList(three) << ", \"fused_ms\": " << jsonList(fused)
+            << ", \"source\": \"" << source << "\"}" << std::endl;
+  return identical ? 0 : 3;
+}
+
 int runPipeline(const std::map<std::string, std::string>& a) {
   const double res = std::stod(arg(a, "res", "0.5"));
   const int n_frames = std::stoi(arg(a, "frames", "5"));
@@ -299,8 +536,11 @@ int runPipeline(const std::map<std::string, std::string>& a) {
   cfg.truncation_m = std::stod(arg(a, "truncation", "3"));
   cfg.filter.voxel_leaf_m = std::stod(arg(a, "leaf", "0"));
   cfg.filter.voxel_impl = voxelFilterImplFromString(arg(a, "voxel", "fast"));
+  cfg.filter.min_z_m = std::stod(arg(a, "min-z", "-inf"));  // pass-through box, as pointcloud_{min,max}_z
+  cfg.filter.max_z_m = std::stod(arg(a, "max-z", "inf"));
   cfg.threads = threads;
   cfg.max_range_m = std::stod(arg(a, "max-range", "-1"));
+  if (a.count("depth-file") || arg(a, "input", "cloud") == "depth") return runDepthPipeline(a, cfg, n_frames, threads);
   Mapper mapper(cfg);
   // Sensor-frame clouds and their poses: rendered frames (map-frame points shifted to the sensor origin, a
   // pure translation) or the synthetic camera.
@@ -417,7 +657,7 @@ int runCoverage(const std::map<std::string, std::string>& a) {
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::cerr << "usage: map_bench frames|pipeline|coverage [--key value ...]\n";
+    std::cerr << "usage: map_bench frames|pipeline|frontend|coverage [--key value ...]\n";
     return 2;
   }
   const std::string cmd = argv[1];
@@ -425,6 +665,7 @@ int main(int argc, char** argv) {
   try {
     if (cmd == "frames") return runFrames(a);
     if (cmd == "pipeline") return runPipeline(a);
+    if (cmd == "frontend") return runFrontend(a);
     if (cmd == "coverage") return runCoverage(a);
   } catch (const std::exception& e) {
     std::cerr << "map_bench: " << e.what() << "\n";

@@ -1233,6 +1233,21 @@ TEST(fused_depth_front_end_edge_cases) {
   stretch.r[2][2] = 2.0;  // not a rotation: z doubles, beyond float
   checkFusedEqualsThreeStages(huge.depthView(), none, k, stretch, quarter, "map-frame overflow", &st, &path);
   CHECK(st.voxel_grid_skipped && path == DepthFrontEndPath::kThreeStages);
+  // 76,800 pixels in one leaf: colour sums of 200 each stay below 2^24, where the pass's integer sums equal
+  // float ones; of 255 each they pass it (float rounds from there on) and the frame takes the three stages.
+  TestImages wall = blank(320, 240);
+  for (uint32_t v = 0; v < 240; ++v)
+    for (uint32_t u = 0; u < 320; ++u) wall.setDepth(u, v, 0.2f + 0.0001f * static_cast<float>(u % 7));
+  const PinholeIntrinsics narrow{1600.0, 1600.0, 159.5, 119.5};
+  RigidTransform offset;  // x, y in [0.23, 0.27]: one 0.5 m leaf
+  offset.t[0] = 0.25;
+  offset.t[1] = 0.25;
+  for (uint8_t level : {200, 255}) {
+    std::fill(wall.color.begin(), wall.color.end(), level);
+    CHECK(checkFusedEqualsThreeStages(wall.depthView(), wall.colorView(ColorEncoding::kRgb8), narrow, offset, fast,
+                                      "one bright leaf", &st, &path) == 1);
+    CHECK(path == (level == 200 ? DepthFrontEndPath::kOnePass : DepthFrontEndPath::kThreeStages));
+  }
   // The views are checked by the core too.
   TestImages bad = blank(16, 12);
   DepthImageView short_step = bad.depthView();
