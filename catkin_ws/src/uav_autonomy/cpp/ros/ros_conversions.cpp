@@ -198,28 +198,8 @@ CloudError depthImageViews(const sensor_msgs::Image& depth, const sensor_msgs::I
 
 RigidTransform fromMsg(const geometry_msgs::TransformStamped& tf) {
   const auto& q = tf.transform.rotation;
-  double w = q.w, x = q.x, y = q.y, z = q.z;
-  const double norm = std::sqrt(w * w + x * x + y * y + z * z);
-  if (norm > 0.0) {
-    w /= norm;
-    x /= norm;
-    y /= norm;
-    z /= norm;
-  }
-  RigidTransform t;
-  t.r[0][0] = 1 - 2 * (y * y + z * z);
-  t.r[0][1] = 2 * (x * y - z * w);
-  t.r[0][2] = 2 * (x * z + y * w);
-  t.r[1][0] = 2 * (x * y + z * w);
-  t.r[1][1] = 1 - 2 * (x * x + z * z);
-  t.r[1][2] = 2 * (y * z - x * w);
-  t.r[2][0] = 2 * (x * z - y * w);
-  t.r[2][1] = 2 * (y * z + x * w);
-  t.r[2][2] = 1 - 2 * (x * x + y * y);
-  t.t[0] = tf.transform.translation.x;
-  t.t[1] = tf.transform.translation.y;
-  t.t[2] = tf.transform.translation.z;
-  return t;
+  const auto& p = tf.transform.translation;
+  return RigidTransform::fromQuaternion(q.w, q.x, q.y, q.z, p.x, p.y, p.z);
 }
 
 uav_msgs::GridLayers layersToMsg(const LayersSnapshot& l, const std::string& frame_id, const ros::Time& stamp) {

@@ -23,6 +23,31 @@ VoxelFilterImpl voxelFilterImplFromString(const std::string& name) {
   throw std::invalid_argument("voxel filter must be 'fast' or 'pcl', got '" + name + "'");
 }
 
+RigidTransform RigidTransform::fromQuaternion(double w, double x, double y, double z, double tx, double ty,
+                                              double tz) {
+  const double norm = std::sqrt(w * w + x * x + y * y + z * z);
+  if (norm > 0.0) {
+    w /= norm;
+    x /= norm;
+    y /= norm;
+    z /= norm;
+  }
+  RigidTransform t;
+  t.r[0][0] = 1 - 2 * (y * y + z * z);
+  t.r[0][1] = 2 * (x * y - z * w);
+  t.r[0][2] = 2 * (x * z + y * w);
+  t.r[1][0] = 2 * (x * y + z * w);
+  t.r[1][1] = 1 - 2 * (x * x + z * z);
+  t.r[1][2] = 2 * (y * z - x * w);
+  t.r[2][0] = 2 * (x * z - y * w);
+  t.r[2][1] = 2 * (y * z + x * w);
+  t.r[2][2] = 1 - 2 * (x * x + y * y);
+  t.t[0] = tx;
+  t.t[1] = ty;
+  t.t[2] = tz;
+  return t;
+}
+
 void transformAndFilter(const ColoredPoints& sensor_points, const RigidTransform& tf, const FilterOptions& options,
                         ColoredPoints& out, FilterStats& stats) {
   out.clear();

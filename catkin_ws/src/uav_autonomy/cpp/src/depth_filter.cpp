@@ -2,7 +2,9 @@
 
 #include "voxel_leaf.h"
 
-#include <emmintrin.h>  // SSE2, part of baseline x86-64
+#if defined(__SSE2__)
+#include <emmintrin.h>  // SSE2, part of baseline x86-64; other CPUs take the scalar loop (same results)
+#endif
 
 #include <algorithm>
 #include <array>
@@ -251,6 +253,7 @@ inline void pixelScalar(const uint8_t* row, uint32_t u, float xn, float yv, cons
   }
 }
 
+#if defined(__SSE2__)
 /// 4 lanes of 32-bit masks from two 2-lane 64-bit masks.
 inline __m128 narrowMask(__m128d lo, __m128d hi) {
   return _mm_shuffle_ps(_mm_castpd_ps(lo), _mm_castpd_ps(hi), _MM_SHUFFLE(2, 0, 2, 0));
@@ -366,6 +369,14 @@ void rowFirstPhase(const uint8_t* row, uint32_t width, const float* x_n, float y
   }
   for (; u < width; ++u) pixelScalar<kMetres>(row, u, x_n[u], yv, c, b, bounds);
 }
+#else
+/// First phase of a row without SSE2: pixelScalar for every pixel (the SSE2 lanes compute exactly its values).
+template <bool kMetres>
+void rowFirstPhase(const uint8_t* row, uint32_t width, const float* x_n, float yv, const PassSetup& c,
+                   RowBuffer& b, Bounds& bounds) {
+  for (uint32_t u = 0; u < width; ++u) pixelScalar<kMetres>(row, u, x_n[u], yv, c, b, bounds);
+}
+#endif
 
 /// What one pass over the pixels found besides its output.
 struct PassResult {

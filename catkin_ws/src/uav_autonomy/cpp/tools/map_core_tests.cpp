@@ -1054,21 +1054,9 @@ TestImages testImages(uint32_t width, uint32_t height, DepthEncoding encoding, u
 /// A proper rotation from a random unit quaternion (fromMsg's formula) and a translation.
 RigidTransform randomTransform(std::mt19937& rng, double t_scale_m) {
   std::normal_distribution<double> g(0.0, 1.0);
-  double w = g(rng), x = g(rng), y = g(rng), z = g(rng);
-  const double n = std::sqrt(w * w + x * x + y * y + z * z);
-  w /= n, x /= n, y /= n, z /= n;
-  RigidTransform t;
-  t.r[0][0] = 1 - 2 * (y * y + z * z);
-  t.r[0][1] = 2 * (x * y - z * w);
-  t.r[0][2] = 2 * (x * z + y * w);
-  t.r[1][0] = 2 * (x * y + z * w);
-  t.r[1][1] = 1 - 2 * (x * x + z * z);
-  t.r[1][2] = 2 * (y * z - x * w);
-  t.r[2][0] = 2 * (x * z - y * w);
-  t.r[2][1] = 2 * (y * z + x * w);
-  t.r[2][2] = 1 - 2 * (x * x + y * y);
-  for (double& c : t.t) c = t_scale_m * g(rng);
-  return t;
+  const double w = g(rng), x = g(rng), y = g(rng), z = g(rng);
+  const double tx = t_scale_m * g(rng), ty = t_scale_m * g(rng), tz = t_scale_m * g(rng);
+  return RigidTransform::fromQuaternion(w, x, y, z, tx, ty, tz);
 }
 
 TEST(fused_depth_front_end_equals_three_stages_on_synthetic_images) {

@@ -18,6 +18,9 @@ struct RigidTransform {
   Point3 origin() const {
     return Point3(static_cast<float>(t[0]), static_cast<float>(t[1]), static_cast<float>(t[2]));
   }
+
+  /// Rotation of the quaternion (w, x, y, z), normalised first (left as is if zero), then translation t.
+  static RigidTransform fromQuaternion(double w, double x, double y, double z, double tx, double ty, double tz);
 };
 
 /// Who downsamples: kFast (default) reproduces pcl::VoxelGrid's leaves, centroids and mean colours (float
