@@ -161,7 +161,9 @@ def fly(out: Path) -> dict[str, Any]:
 
 
 def check(out: Path) -> dict[str, Any]:
-    rospy.wait_for_service("/map_server/get_layers", timeout=30.0)
+    # The node registers its services one after the other with the master; wait for each one used.
+    for service in ("/map_server/get_layers", "/map_server/export_occupied"):
+        rospy.wait_for_service(service, timeout=30.0)
     snap = rospy.ServiceProxy("/map_server/get_layers", GetGridLayers)().layers
     now = layers_arrays(snap)
     before = np.load(out / "layers_before.npz")
