@@ -1,5 +1,5 @@
-"""Benchmark of the whole loiter loop (issue 9): SITL + router + sim bridge (two 640x480 cameras) +
-map server (OctoMap, 0.5 m) + feature evaluator + goal selector + planner + controller + tracker +
+"""Benchmark of the whole loiter loop (issue 9): SITL + router + sim bridge (two 640x480 cameras, nadir 5 Hz and
+forward 10 Hz) + map server (OctoMap, 0.5 m) + feature evaluator + goal selector + planner + controller + tracker +
 scorer, started by ``uav-run`` exactly as a user would, in lockstep so the simulation runs as fast as
 the slowest part of the loop allows.
 
@@ -23,6 +23,9 @@ Results (``bench/results/latest.jsonl``):
   by losing map data would show here); baseline: the lawnmower's.
 * ``scenario.loiter.cpu_s_per_sim_s``: CPU seconds of all the run's processes per simulated second
   (sampled from /proc; the notes break it down per node); on 2 cores 3x real time needs <= 0.67.
+* ``scenario.loiter.rtf_nadir_10hz``: the same loiter with the nadir (mapping) camera at 10 Hz, its default
+  until stop 17 (config/sim_bridge.yaml says why it is 5 Hz now); baseline: the default loiter's. Its notes
+  give the frames the map server dropped and the CPU per simulated second. ``--skip-nadir-10hz`` leaves it out.
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
@@ -51,6 +54,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
@@ -227,6 +232,7 @@ def main() -> int:
     p.add_argument("--sim-seconds", type=float, default=120.0, help="simulated seconds per run")
     p.add_argument("--repeats", type=int, default=2, help="runs of each scenario (figures are their means)")
     p.add_argument("--keep", type=Path, help="keep the run folders here (default: a temporary folder)")
+    p.add_argument("--skip-nadir-10hz", action="store_true", help="no runs with the nadir camera at 10 Hz")
     args = p.parse_args()
     if shutil.which("uav-run") is None:
         sys.stderr.write("bench_scenario: uav-run not on PATH; run inside the project environment (scripts/in_env)\n")
@@ -235,10 +241,14 @@ def main() -> int:
         sys.stderr.write("bench_scenario: --repeats must be >= 1\n")
         return 2
     parent = args.keep or Path(tempfile.mkdtemp(prefix="bench_scenario_"))
-    loiter, mower = Runs(), Runs()
+    loiter, mower, nadir10 = Runs(), Runs(), Runs()
+    variants = [(loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")]
+    if not args.skip_nadir_10hz:
+        parent.mkdir(parents=True, exist_ok=True)
+        variants.append((nadir10, nadir_10hz_scenario(parent / "loiter_nadir_10hz.yaml"), "loiter_nadir_10hz"))
     try:
         for i in range(args.repeats):
-            for runs, scenario, name in ((loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")):
+            for runs, scenario, name in variants:
                 runs.probes.append(machine_probe())
                 metrics, pace, cpu = run(scenario, parent / f"{name}_{i}", args.sim_seconds)
                 runs.metrics.append(metrics)
@@ -248,7 +258,8 @@ def main() -> int:
         if args.keep is None:
             shutil.rmtree(parent, ignore_errors=True)
     notes = (
-        f"{args.sim_seconds:g} s simulated, lockstep, 2x 640x480 cameras, OctoMap 0.5 m; baseline lawnmower; "
+        f"{args.sim_seconds:g} s simulated, lockstep, 2x 640x480 cameras (nadir 5 Hz, forward 10 Hz), OctoMap 0.5 m; "
+        "baseline lawnmower; "
         f"mean of {args.repeats} runs each (loiter {loiter.rtfs()}; lawnmower {mower.rtfs()})"
     )
     probe = (
@@ -302,7 +313,33 @@ def main() -> int:
         mower.coverage("efficiency"),
         notes=f"{notes}; rate / (swath x cruise speed); loiter swath {loiter.coverage('swath_m'):.0f} m",
     )
+    if nadir10.metrics:
+        record(
+            "scenario.loiter.rtf_nadir_10hz",
+            nadir10.rtf(),
+            "x",
+            rtf,
+            notes=f"the loiter with the nadir camera at 10 Hz (runs {nadir10.rtfs()}); baseline: the default loiter "
+            f"(5 Hz nadir) in the same run; map server dropped "
+            f"{nadir10.mean(lambda i: dropped_pct(nadir10.metrics[i])):.1f} % of its frames (default "
+            f"{loiter.mean(lambda i: dropped_pct(loiter.metrics[i])):.1f} %); CPU {nadir10.cpu_per_sim_s():.3f} "
+            f"cpu-s/sim-s (default {cpu:.3f}); coverage efficiency {nadir10.coverage('efficiency'):.2f} (default "
+            f"{loiter.coverage('efficiency'):.2f}); machine probe {nadir10.probe_notes()}",
+        )
     return 0
+
+
+def nadir_10hz_scenario(path: Path) -> Path:
+    """config/scenarios/loiter.yaml with the nadir camera at 10 Hz (a sim_bridge node_params override), written to
+    ``path``; the world file is made absolute so the copy can live anywhere."""
+    scenario = yaml.safe_load(LOITER.read_text())
+    world = scenario.get("world") or {}
+    if "config" in world:
+        world["config"] = str((LOITER.parent / world["config"]).resolve())
+    bridge = scenario.setdefault("node_params", {}).setdefault("sim_bridge", {})
+    bridge.setdefault("cameras", {}).setdefault("nadir", {})["rate_hz"] = 10.0
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return path
 
 
 if __name__ == "__main__":

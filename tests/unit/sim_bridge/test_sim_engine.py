@@ -46,7 +46,16 @@ def test_cameras_follow_their_rates_and_consumers(engine_of) -> None:
             assert c.frame.color_rgb.shape == (480, 640, 3)
             assert c.depth_m is c.frame.depth_m  # no noise configured
             assert c.detections is None
-    assert counts == {"nadir": 10, "forward": 0}
+    assert counts == {"nadir": 5, "forward": 0}  # the default nadir (mapping) camera runs at 5 Hz
+    wanted = {"nadir", "forward"}
+    counts = {"nadir": 0, "forward": 0}
+    for k in range(50, 100):  # the next second, both cameras consumed: each at its own rate
+        out = eng.step(
+            _state(0.02 * k, (0.0, 0.0, 40.0)), home=None, wanted=lambda n: n in wanted, want_detections=False
+        )
+        for c in out.cameras:
+            counts[c.camera.name] += 1
+    assert counts == {"nadir": 5, "forward": 10}
     out = engine_of().step(_state(0.0, (0.0, 0.0, 40.0)), home=None, wanted=lambda n: False)
     assert sorted(c.camera.name for c in out.cameras) == ["forward", "nadir"]  # detections still need them
     assert all(c.detections is not None for c in out.cameras)
@@ -64,7 +73,7 @@ def test_detection_only_render_detects_what_the_full_render_does(engine_of, smal
         for dist_m in (25.0, 70.0, 95.0):
             yaw = 0.7 * k  # approach from several sides, camera looking at the object
             x, y = ox - dist_m * math.cos(yaw), oy - dist_m * math.sin(yaw)
-            t += 0.1
+            t += 0.2  # both cameras due (nadir 5 Hz, forward 10 Hz)
             state = _state(t, (x, y, oz + 0.45 * dist_m), yaw=yaw)
             full = eng_full.step(state, home=None, wanted=lambda n: True)
             cheap = eng_cheap.step(state, home=None, wanted=lambda n: False)

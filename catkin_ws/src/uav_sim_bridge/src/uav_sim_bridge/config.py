@@ -37,9 +37,10 @@ REPO_ROOT = Path(__file__).resolve().parents[5]
 
 
 def default_cameras() -> dict[str, CameraConfig]:
-    """The architecture's default cameras: a nadir camera and a forward camera pitched 25 degrees down."""
+    """The architecture's default cameras: a nadir mapping camera at 5 Hz and a forward camera pitched 25 degrees
+    down at 10 Hz (config/sim_bridge.yaml says why)."""
     return {
-        "nadir": CameraConfig(hfov_deg=90.0, rate_hz=10.0, mount=MountConfig((0.0, 0.0, -0.08), (0.0, 90.0, 0.0))),
+        "nadir": CameraConfig(hfov_deg=90.0, rate_hz=5.0, mount=MountConfig((0.0, 0.0, -0.08), (0.0, 90.0, 0.0))),
         "forward": CameraConfig(hfov_deg=90.0, rate_hz=10.0, mount=MountConfig((0.12, 0.0, -0.04), (0.0, 25.0, 0.0))),
     }
 
