@@ -29,7 +29,7 @@ Results (``bench/results/latest.jsonl``):
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
-vary from run to run (2.0x-3.0x for the loiter on this shared 2-core VM, whose speed drifts by up to ~1.45x):
+vary from run to run (2.9x-3.4x for the loiter on this shared 2-core VM, whose speed drifts by up to ~1.45x):
 each scenario runs ``--repeats`` times, alternated, and the figures are the means, with every run's
 real-time factor in the notes. Before each run a fixed probe times a memory-bound numpy workload and a pure
 Python loop (best of 3): the notes give both, so figures from different times can be told apart from the
