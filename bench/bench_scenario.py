@@ -223,6 +223,9 @@ class Runs:
                 out[k] = out.get(k, 0.0) + v / total_sim
         return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
+    def dropped_pct(self) -> float:
+        return self.mean(lambda i: dropped_pct(self.metrics[i]))
+
     def coverage(self, key: str) -> float:
         return self.mean(lambda i: float(self.metrics[i]["coverage"][key]))
 
@@ -279,9 +282,9 @@ def main() -> int:
     )
     record(
         "scenario.loiter.clouds_dropped_pct",
-        loiter.mean(lambda i: dropped_pct(loiter.metrics[i])),
+        loiter.dropped_pct(),
         "%",
-        mower.mean(lambda i: dropped_pct(mower.metrics[i])),
+        mower.dropped_pct(),
         notes=(
             f"{notes}; frames the map server dropped of those it received: insertion too slow (queue_full) "
             "or incomplete (unsynchronized)"
@@ -321,8 +324,8 @@ def main() -> int:
             rtf,
             notes=f"the loiter with the nadir camera at 10 Hz (runs {nadir10.rtfs()}); baseline: the default loiter "
             f"(5 Hz nadir) in the same run; map server dropped "
-            f"{nadir10.mean(lambda i: dropped_pct(nadir10.metrics[i])):.1f} % of its frames (default "
-            f"{loiter.mean(lambda i: dropped_pct(loiter.metrics[i])):.1f} %); CPU {nadir10.cpu_per_sim_s():.3f} "
+            f"{nadir10.dropped_pct():.1f} % of its frames (default "
+            f"{loiter.dropped_pct():.1f} %); CPU {nadir10.cpu_per_sim_s():.3f} "
             f"cpu-s/sim-s (default {cpu:.3f}); coverage efficiency {nadir10.coverage('efficiency'):.2f} (default "
             f"{loiter.coverage('efficiency'):.2f}); machine probe {nadir10.probe_notes()}",
         )
