@@ -37,7 +37,7 @@ test-ros: setup ## rostest integration tests with a real roscore
 test-e2e: setup ## SITL + router + ROS stack end-to-end tests
 	@scripts/run_tests.sh e2e
 
-check: lint typecheck ## ruff + mypy
+check: lint typecheck ## ruff, ruff format and mypy (strict on every pure core); .ci/run runs it before make test
 
 lint: setup
 	@$(IN_ENV) ruff check .
@@ -60,7 +60,7 @@ docker-run: ## run `make demo` in the image
 	docker run --rm -it uav-test-range
 
 clean: ## remove the catkin build and test outputs (keeps .venv and apt)
-	rm -rf catkin_ws/build catkin_ws/devel artifacts .stamps/catkin_make.log
+	rm -rf catkin_ws/build catkin_ws/devel catkin_ws/install artifacts .stamps/catkin_make.log
 
 distclean: clean ## also remove the venv and stamps
 	rm -rf .venv .stamps

@@ -1,6 +1,6 @@
 """Autonomy benchmarks: features + score + argmax on a 1000 x 1000 grid, and planning a 1 km path.
 
-Targets (issue 7): all features and the score in <= 20 ms; the straight-line plan in <= 5 ms.
+Targets: all features and the score in <= 20 ms; the straight-line plan in <= 5 ms.
 
 Baselines, measured in the same run:
 
@@ -16,7 +16,7 @@ Baselines, measured in the same run:
   surface of every observed 1 m DEM cell, 4 voxels each), through the steps the planner
   node runs: decode (the map server's binary stream is built from those leaves by an encoder
   here), accumulate on the planner lattice, build the search grid, search. Baselines: the
-  reference node-by-node decoder of uav_autonomy.core.mapping_octree for the decode step,
+  reference node-by-node decoder of uav_autonomy.core.octree_reader for the decode step,
   and the DEM-derived A* for the whole plan.
 
 The machine is shared (2 cores, several engineers building and testing at once),
@@ -26,27 +26,22 @@ so timings are medians over repeats and can be noisy.
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from benchlib import median, record, time_it
 
-sys.path[:0] = [str(Path(__file__).resolve().parents[1] / "catkin_ws/src/uav_autonomy/src")]
-
-from benchlib import median, record, time_it  # noqa: E402
-
-from uav_autonomy.core.features import (  # noqa: E402
+from uav_autonomy.core.features import (
     FeatureConfig,
     FeatureEvaluator,
     MapLayers,
     Target,
 )
-from uav_autonomy.core.grid_geometry import GridSpec  # noqa: E402
-from uav_autonomy.core.mapping_octree import decode_binary_octree  # noqa: E402
-from uav_autonomy.core.mcdm import argmax_cell, weighted_score  # noqa: E402
-from uav_autonomy.core.planning import ElevationMap, PlannerConfig, plan_astar, plan_straight  # noqa: E402
-from uav_autonomy.core.planning_voxels import (  # noqa: E402
+from uav_autonomy.core.grid_geometry import GridSpec
+from uav_autonomy.core.mcdm import argmax_cell, weighted_score
+from uav_autonomy.core.octree_reader import decode_binary_octree
+from uav_autonomy.core.planning import ElevationMap, PlannerConfig, plan_astar, plan_straight
+from uav_autonomy.core.planning_voxels import (
     decode_octree,
     grid_from_occupancy,
     occupancy_from_leaves,
@@ -214,7 +209,7 @@ def bench_planner() -> None:
         o_ms,
         notes=(
             "3D A* (10 m x 5 m voxels, weighted 1.5, shortcut) over the same DEM; "
-            f"baseline: optimal A* (weight 1). No target in the issue. {SHARED}"
+            f"baseline: optimal A* (weight 1). No target is set for it. {SHARED}"
         ),
     )
 

@@ -1,4 +1,4 @@
-"""Benchmark of the motion-stereo depth estimator (issue 8) over a fixed flight above the default world.
+"""Benchmark of the motion-stereo depth estimator over a fixed flight above the default world.
 
 The flight: two straight legs at 50 m above the terrain, 8 m/s, nadir camera at
 10 Hz (the bridge's default nadir camera runs at 5 Hz; 10 Hz is kept so figures stay
@@ -45,34 +45,27 @@ from pathlib import Path
 import cv2
 import numpy as np
 import numpy.typing as npt
+from benchlib import REPO, median, record
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [
-    str(REPO / "bench"),
-    str(REPO / "catkin_ws/src/uav_autonomy/src"),
-    str(REPO / "catkin_ws/src/uav_sim_bridge/src"),
-]
-
-from benchlib import median, record  # noqa: E402
-
-from uav_autonomy.core.depth_config import DepthConfig, LrCheck, PoseRefineConfig  # noqa: E402
-from uav_autonomy.core.depth_estimator import DepthEstimate, MotionStereoEstimator  # noqa: E402
-from uav_autonomy.core.depth_matching import disparity_search  # noqa: E402
-from uav_autonomy.core.depth_metrics import (  # noqa: E402
+from uav_common.config import load_config
+from uav_common.pointcloud import pack_xyzrgb
+from uav_perception.core.depth.config import DepthConfig, LrCheck, PoseRefineConfig
+from uav_perception.core.depth.estimator import DepthEstimate, MotionStereoEstimator
+from uav_perception.core.depth.matching import disparity_search
+from uav_perception.core.depth.metrics import (
     DepthAccumulator,
     DepthEvaluation,
     class_index_image,
     class_lut,
     evaluate_depth,
 )
-from uav_autonomy.core.depth_types import CameraPose, ColorFrame, PinholeCamera  # noqa: E402
-from uav_common.config import load_config  # noqa: E402
-from uav_common.pointcloud import pack_xyzrgb  # noqa: E402
-from uav_sim_bridge.core.camera import CameraConfig, CameraModel, MountConfig  # noqa: E402
-from uav_sim_bridge.core.sensor_noise import PoseNoise, PoseNoiseConfig  # noqa: E402
-from uav_sim_bridge.core.transforms import RigidTransform  # noqa: E402
-from uav_sim_bridge.core.world import World, load_or_generate  # noqa: E402
-from uav_sim_bridge.core.world_config import load_world_config  # noqa: E402
+from uav_perception.core.depth.types import CameraPose, ColorFrame, PinholeCamera
+from uav_sim_bridge.core.camera import CameraConfig, CameraModel, MountConfig
+from uav_sim_bridge.core.sensor_noise import PoseNoise, PoseNoiseConfig
+from uav_sim_bridge.core.transforms import RigidTransform
+from uav_sim_bridge.core.world import World
+from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.shell.world_store import load_or_generate
 
 RATE_HZ = 10.0
 SPEED_MPS = 8.0

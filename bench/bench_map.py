@@ -1,4 +1,4 @@
-"""Map server benchmark (issue 6): insertion time per frame and memory, per mode and backend.
+"""Map server benchmark: insertion time per frame and memory, per mode and backend.
 
 Setup: 640 x 480, 90 deg nadir frames rendered by the sim bridge's renderer (``uav_sim_bridge.render``) of the
 default world (``config/worlds/default.yaml``), 50 m above the ground, at 0.25, 0.5 and 1.0 m resolution. The
@@ -37,16 +37,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from benchlib import record
+from benchlib import REPO, record
 
 from uav_sim_bridge.core.camera import CameraModel, depth_to_points, look_at
 from uav_sim_bridge.core.transforms import RigidTransform
-from uav_sim_bridge.core.world import World, load_or_generate
+from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import load_world_config
 from uav_sim_bridge.render import Renderer
+from uav_sim_bridge.shell.world_store import load_or_generate
 
-REPO = Path(__file__).resolve().parents[1]
-BINARY = REPO / "catkin_ws" / "devel" / "lib" / "uav_autonomy" / "map_bench"
+BINARY = REPO / "catkin_ws" / "devel" / "lib" / "uav_mapping" / "map_bench"
 WORLD = REPO / "config" / "worlds" / "default.yaml"
 CACHE = Path("~/.cache/uav_test_range/worlds").expanduser()
 AGL_M = 50.0

@@ -1,4 +1,4 @@
-"""Renderer and sim-bridge benchmark (issue 5).
+"""Renderer and sim-bridge benchmark.
 
 Measures, on the default world:
 
@@ -27,11 +27,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from benchlib import REPO
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(REPO / "tests"))
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -45,9 +43,10 @@ from uav_sim_bridge.config import default_cameras  # noqa: E402
 from uav_sim_bridge.core.camera import CameraModel  # noqa: E402
 from uav_sim_bridge.core.terrain import Heightfield  # noqa: E402
 from uav_sim_bridge.core.transforms import RigidTransform  # noqa: E402
-from uav_sim_bridge.core.world import World, load_or_generate  # noqa: E402
+from uav_sim_bridge.core.world import World  # noqa: E402
 from uav_sim_bridge.core.world_config import load_world_config  # noqa: E402
 from uav_sim_bridge.render import Renderer  # noqa: E402
+from uav_sim_bridge.shell.world_store import load_or_generate  # noqa: E402
 
 CACHE = Path(os.environ.get("UAV_ARTIFACTS", REPO / "artifacts")) / "world_cache"
 POSES = 40

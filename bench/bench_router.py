@@ -38,14 +38,12 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
-
+import benchlib  # noqa: E402, F401 - puts tests/ (the shared harness) on sys.path
 from benchlib import percentile, record  # noqa: E402
 from helpers.procs import artifacts_dir, free_port, free_udp_port, wait_for_port  # noqa: E402
 
-from mavlink_router.dialect import load_message_table  # noqa: E402
-from mavlink_router.frames import x25_crc  # noqa: E402
+from mavlink_router.core.frames import x25_crc  # noqa: E402
+from mavlink_router.shell.dialect import load_message_table  # noqa: E402
 
 SYSTEM_TIME = 2
 CRC_EXTRA = load_message_table()[SYSTEM_TIME].crc_extra

@@ -1,4 +1,4 @@
-"""Benchmark of the whole loiter loop (issue 9): SITL + router + sim bridge (two 640x480 cameras, nadir 5 Hz and
+"""Benchmark of the whole loiter loop: SITL + router + sim bridge (two 640x480 cameras, nadir 5 Hz and
 forward 10 Hz) + map server (OctoMap, 0.5 m) + feature evaluator + goal selector + planner + controller + tracker +
 scorer, started by ``uav-run`` exactly as a user would, in lockstep so the simulation runs as fast as
 the slowest part of the loop allows.
@@ -56,11 +56,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "bench"))
-
-from benchlib import record  # noqa: E402
+from benchlib import REPO, record
 
 LOITER = REPO / "config/scenarios/loiter.yaml"
 LAWNMOWER = REPO / "bench/scenarios/loiter_lawnmower.yaml"

@@ -20,11 +20,10 @@ import os
 import socket
 import sys
 import time
-from pathlib import Path
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from benchlib import record
+from benchlib import REPO, record
 
 from sitl.config import load_sitl_config
 from sitl.core.mission import MissionItem
@@ -36,7 +35,6 @@ from uav_common.geo import LocalProjection
 
 SIM_SECONDS = 90.0
 TARGET = 50.0
-REPO = Path(__file__).resolve().parents[1]
 
 
 def free_port(kind: int) -> int:

@@ -14,10 +14,22 @@ from __future__ import annotations
 import json
 import os
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
+
+from uav_common.paths import repo_root
+
+_root = repo_root(Path(__file__))
+if _root is None:  # pragma: no cover - benchmarks run from a checkout
+    msg = f"{__file__} is not inside a checkout of the project"
+    raise RuntimeError(msg)
+#: The checkout the benchmarks run from; its tests/ holds the shared harness (``helpers``).
+REPO: Path = _root
+if str(REPO / "tests") not in sys.path:
+    sys.path.append(str(REPO / "tests"))
 
 RESULTS = Path(os.environ.get("UAV_BENCH_RESULTS", Path(__file__).resolve().parent / "results" / "latest.jsonl"))
 

@@ -42,13 +42,27 @@ run_e2e() {
   return $rc
 }
 
+# The unit tier measures branch coverage (pyproject.toml [tool.coverage]) and prints the total; the
+# per-file table goes to artifacts/coverage-unit.txt and the XML report to artifacts/coverage-unit.xml.
+run_unit() {
+  run_tier unit 120 --cov --cov-report= "$@"
+  local rc=$?
+  if [ -f artifacts/.coverage ]; then
+    scripts/in_env python -m coverage report > artifacts/coverage-unit.txt 2>&1
+    scripts/in_env python -m coverage xml -q -o artifacts/coverage-unit.xml > /dev/null 2>&1
+    printf '\033[1m[test] tier unit: branch coverage %s %% (per file: artifacts/coverage-unit.txt)\033[0m\n' \
+      "$(scripts/in_env python -m coverage report --format=total 2>/dev/null || echo '?')"
+  fi
+  return $rc
+}
+
 rc=0
 case "$tier" in
-  unit) run_tier unit 120 "$@" || rc=1 ;;
+  unit) run_unit "$@" || rc=1 ;;
   ros) run_tier ros 300 "$@" || rc=1 ;;
   e2e) run_e2e "$@" || rc=1 ;;
   all)
-    run_tier unit 120 "$@" || rc=1
+    run_unit "$@" || rc=1
     run_tier ros 300 "$@" || rc=1
     run_e2e "$@" || rc=1
     ;;

@@ -102,12 +102,14 @@ step_build() {
   (
     flock 9
     cd "$REPO/catkin_ws"
+    # `install` builds and then installs into catkin_ws/install, the layout a companion computer runs
+    # (source catkin_ws/install/setup.bash); the devel space is what the checkout uses.
     PATH="/usr/bin:$PATH" catkin_make "${force[@]}" -DPYTHON_EXECUTABLE=/usr/bin/python3 \
-      -DCMAKE_BUILD_TYPE=Release -DCATKIN_ENABLE_TESTING=OFF -j"$(nproc)" > "$STAMPS/catkin_make.log" 2>&1 \
+      -DCMAKE_BUILD_TYPE=Release -DCATKIN_ENABLE_TESTING=OFF -j"$(nproc)" install > "$STAMPS/catkin_make.log" 2>&1 \
       || { tail -n 60 "$STAMPS/catkin_make.log" >&2; die "catkin_make failed; full log in .stamps/catkin_make.log"; }
   ) 9>"$STAMPS/catkin.lock"
   echo "$layout" > "$stamp"
-  say "build: ok (source catkin_ws/devel/setup.bash to use the workspace)"
+  say "build: ok (source catkin_ws/devel/setup.bash to use the workspace; catkin_ws/install is the install space)"
 }
 
 main() {

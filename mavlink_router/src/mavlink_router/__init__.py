@@ -2,12 +2,12 @@
 
 Layout (functional core, imperative shell):
 
-* pure core: :mod:`~mavlink_router.frames` (framing, CRC), :mod:`~mavlink_router.routing`
-  (learned systems, routing decisions, filters), :mod:`~mavlink_router.dedup`,
-  :mod:`~mavlink_router.signing`, :mod:`~mavlink_router.core` (bytes in, routed frames out),
-  :mod:`~mavlink_router.config` (INI parsing and validation);
-* adapters and shell: :mod:`~mavlink_router.dialect` (message table from pymavlink),
-  :mod:`~mavlink_router.endpoints`, :mod:`~mavlink_router.tlog`, :mod:`~mavlink_router.mainloop`,
+* pure core: :mod:`~mavlink_router.core.frames` (framing, CRC), :mod:`~mavlink_router.core.routing`
+  (learned systems, routing decisions, filters), :mod:`~mavlink_router.core.dedup`,
+  :mod:`~mavlink_router.core.signing`, :mod:`~mavlink_router.core.engine` (bytes in, routed frames out),
+  :mod:`~mavlink_router.core.config` (INI parsing and validation);
+* adapters and shell: :mod:`~mavlink_router.shell.dialect` (message table from pymavlink),
+  :mod:`~mavlink_router.shell.endpoints`, :mod:`~mavlink_router.shell.tlog`, :mod:`~mavlink_router.shell.mainloop`,
   :mod:`~mavlink_router.cli`.
 """
 

@@ -42,7 +42,7 @@ from importlib import metadata
 from pathlib import Path
 from types import FrameType
 
-from mavlink_router.config import (
+from mavlink_router.core.config import (
     DEFAULT_BAUD,
     DEFAULT_RETRY_TIMEOUT_S,
     LOG_LEVELS,
@@ -57,15 +57,17 @@ from mavlink_router.config import (
     load_config_files,
     next_udp_client_port,
 )
-from mavlink_router.dialect import DIALECTS, load_message_table
-from mavlink_router.errors import ConfigError, RouterError
+from mavlink_router.errors import ConfigError, EndpointError, RouterError
+from mavlink_router.shell.dialect import DIALECTS, load_message_table
+from uav_common.exit_codes import ExitCode
 
 __all__ = ["build_config", "main", "parse_args"]
 
 DEFAULT_CONF_FILE = Path("/etc/mavlink-router/main.conf")
 DEFAULT_CONF_DIR = Path("/etc/mavlink-router/config.d")
-EXIT_USAGE = 2
-EXIT_FAILURE = 1
+EXIT_USAGE = int(ExitCode.CONFIG)
+EXIT_FAILURE = int(ExitCode.FAILURE)
+EXIT_RESOURCE = int(ExitCode.RESOURCE)
 TRACE = 5
 
 _LOG = logging.getLogger("mavlink_router")
@@ -269,12 +271,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             msg = "nothing to route: give endpoints (-e, -p, <ip:port>, <device>) or a configuration file (-c)"
             raise ConfigError(msg)
         table = load_message_table(config.general.mavlink_dialect)
-        from mavlink_router.mainloop import Router  # noqa: PLC0415 - keep --help fast
+        from mavlink_router.shell.mainloop import Router  # noqa: PLC0415 - keep --help fast
 
         router = Router(config, table)
     except ConfigError as err:
         _LOG.error("configuration error: %s", err)
         return EXIT_USAGE
+    except EndpointError as err:
+        _LOG.error("%s", err)
+        return EXIT_RESOURCE
     except RouterError as err:
         _LOG.error("%s", err)
         return EXIT_FAILURE

@@ -19,14 +19,15 @@ import yaml
 
 from sitl.config import SitlConfig, load_sitl_config
 from sitl.errors import LinkError, SitlConfigError, SitlError
+from uav_common.exit_codes import ExitCode
 
 __all__ = ["build_parser", "default_config_path", "main", "overrides_from_args"]
 
 log = logging.getLogger("sitl")
 
-EXIT_CONFIG = 2
-EXIT_LINK = 3
-EXIT_ERROR = 1
+EXIT_CONFIG = int(ExitCode.CONFIG)
+EXIT_LINK = int(ExitCode.RESOURCE)
+EXIT_ERROR = int(ExitCode.FAILURE)
 
 
 def default_config_path() -> Path | None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from sitl.errors import SitlConfigError
-from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
+from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_mapping, set_dotted
 
 __all__ = [
     "BatteryConfig",
@@ -41,7 +41,6 @@ __all__ = [
     "TimeMode",
     "UdpLinkConfig",
     "load_sitl_config",
-    "set_dotted",
 ]
 
 
@@ -368,23 +367,6 @@ class SitlConfig:
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
 
-def set_dotted(data: dict[str, Any], dotted_key: str, value: Any) -> None:
-    """Set ``a.b.c = value`` in a nested mapping, creating sections as needed.
-
-    Raises:
-        SitlConfigError: an intermediate key holds a value that is not a mapping.
-    """
-    parts = dotted_key.split(".")
-    node = data
-    for part in parts[:-1]:
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            msg = f"cannot set '{dotted_key}': '{part}' is not a section"
-            raise SitlConfigError(msg)
-        node = child
-    node[parts[-1]] = value
-
-
 _PATH_KEYS = (
     ("params", "file"),
     ("links", "gcs", "signing_key_file"),
@@ -431,20 +413,15 @@ def load_sitl_config(
     source = str(path) if path is not None else "built-in defaults"
     if overrides:
         extra: dict[str, Any] = {}
-        for key, value in overrides.items():
-            set_dotted(extra, key, value)
+        try:
+            for key, value in overrides.items():
+                set_dotted(extra, key, value)
+        except ConfigError as err:
+            raise SitlConfigError(str(err)) from err
         _resolve_paths(extra, Path.cwd())
-        _merge(data, extra)
+        data = deep_merge(data, extra)
         source += " + command-line overrides (" + ", ".join(sorted(overrides)) + ")"
     try:
         return from_mapping(SitlConfig, data, source=source)
     except ConfigError as err:
         raise SitlConfigError(str(err)) from err
-
-
-def _merge(into: dict[str, Any], extra: Mapping[str, Any]) -> None:
-    for key, value in extra.items():
-        if isinstance(value, Mapping) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = value

@@ -6,13 +6,15 @@ turns them into a message and an exit status.
 
 from __future__ import annotations
 
+from uav_common.errors import ConfigError, ResourceError
+
 
 class SitlError(Exception):
     """Root of every error raised by :mod:`sitl`."""
 
 
-class SitlConfigError(SitlError):
-    """The configuration (file, command line) is invalid.
+class SitlConfigError(SitlError, ConfigError):
+    """The configuration (file, command line) is invalid (also a :class:`uav_common.errors.ConfigError`).
 
     The message names the source, the key and what was expected, so it can be
     shown to a user as it is.
@@ -23,7 +25,7 @@ class ParamFileError(SitlError):
     """The persisted parameter file cannot be read or written."""
 
 
-class LinkError(SitlError):
+class LinkError(SitlError, ResourceError):
     """A MAVLink link cannot be opened (port busy, bad address, bad signing key)."""
 
 

@@ -7,7 +7,7 @@ own ``/uav/controller/odom``), and a small ROS client process that relays servic
 
 Time: there is no simulator bridge, hence no ``/clock``: ``use_sim_time`` stays false and the nodes
 run on wall time while the SITL runs 3x faster. The controller streams setpoints at 40 Hz wall
-(> 13 per simulated second, PX4's rule is > 2 Hz; the issue asks >= 10), the SITL judges stream and
+(> 13 per simulated second, PX4's rule is > 2 Hz; we require >= 10), the SITL judges stream and
 link losses against wall-time floors as well (docs/sitl.md), so nothing times out falsely.
 
 Every assertion on the vehicle uses the SITL's own telemetry on the GCS link (position, mode, armed,

@@ -17,9 +17,9 @@ import pytest
 from helpers.procs import free_port, free_udp_port
 from mr_harness import drain, encoder, udp_sink, v2
 
-from mavlink_router.config import parse_config_text
-from mavlink_router.dialect import load_message_table
-from mavlink_router.mainloop import Router
+from mavlink_router.core.config import parse_config_text
+from mavlink_router.shell.dialect import load_message_table
+from mavlink_router.shell.mainloop import Router
 
 pytestmark = pytest.mark.timeout(30)
 TABLE = load_message_table()

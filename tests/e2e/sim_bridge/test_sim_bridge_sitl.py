@@ -21,11 +21,11 @@ from nav_msgs.msg import Odometry
 from pymavlink import mavutil
 from sensor_msgs.msg import Image
 
+from uav_common.ros.arrays import image_to_array
 from uav_msgs.msg import Collision, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest
-from uav_sim_bridge.core.world import load_or_generate
 from uav_sim_bridge.core.world_config import ObjectClass, load_world_config
-from uav_sim_bridge.ros.conversions import image_to_numpy
+from uav_sim_bridge.shell.world_store import load_or_generate
 
 pytestmark = pytest.mark.slow
 
@@ -125,7 +125,7 @@ def test_bridge_follows_the_real_sitl_in_lockstep(tmp_path: Path) -> None:
             nearest = min(odom, key=lambda o: abs(o.header.stamp.to_sec() - t_img))  # the subscriber may drop a few
             assert abs(nearest.header.stamp.to_sec() - t_img) <= 0.04
             pose = nearest.pose.pose.position
-            d = image_to_numpy(depth_msg)
+            d = image_to_array(depth_msg)
             centre = float(np.mean(d[239:241, 319:321]))
             assert abs(pose.x) < 10.0
             assert abs(pose.y) < 10.0

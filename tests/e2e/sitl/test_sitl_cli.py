@@ -10,8 +10,6 @@ from pathlib import Path
 import yaml
 from e2e.sitl.harness import SitlPorts
 
-REPO = Path(__file__).resolve().parents[3]
-
 
 def run(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(["uav-sitl", *args], capture_output=True, text=True, timeout=timeout_s, check=False)

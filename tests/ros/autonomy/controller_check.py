@@ -12,11 +12,11 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE), str(HERE.parents[1])]
-
 import rospy  # noqa: E402
 import rostest  # noqa: E402
 from fake_px4 import FakePx4  # noqa: E402
 from geometry_msgs.msg import Point, PoseStamped  # noqa: E402
+from helpers.paths import REPO  # noqa: E402
 from helpers.procs import Proc, free_udp_port  # noqa: E402
 from nav_msgs.msg import Path as PathMsg  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
@@ -24,8 +24,6 @@ from sensor_msgs.msg import BatteryState  # noqa: E402
 from uav_common.waiting import wait_until  # noqa: E402
 from uav_msgs.msg import ControllerState  # noqa: E402
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest  # noqa: E402
-
-REPO = HERE.parents[2]
 
 
 class ControllerAgainstFakePx4(unittest.TestCase):

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
-import subprocess
 import sys
 import threading
 import time
@@ -29,18 +27,20 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parents[2]
+sys.path.insert(0, str(HERE.parents[1]))  # tests/: the shared helpers
+from helpers.paths import REPO  # noqa: E402
+from helpers.procs import Proc  # noqa: E402
+
 sys.path.insert(0, str(HERE))
 
 from fake_sitl_peer import HOME, FakeSitl, hover_east  # noqa: E402
 
 from uav_common.geo import LocalProjection  # noqa: E402
+from uav_common.ros.arrays import cloud_to_xyzrgb, image_to_array  # noqa: E402
 from uav_msgs.msg import Collision, DetectionArray, SimState  # noqa: E402
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest  # noqa: E402
-from uav_sim_bridge.core.world import load_or_generate  # noqa: E402
 from uav_sim_bridge.core.world_config import ObjectClass, load_world_config  # noqa: E402
-from uav_sim_bridge.ros.conversions import image_to_numpy  # noqa: E402
-from uav_sim_bridge.ros.pointcloud2 import pointcloud2_to_xyzrgb  # noqa: E402
+from uav_sim_bridge.shell.world_store import load_or_generate  # noqa: E402
 
 ALT_M = 30.0
 SPEED_MPS = 2.0
@@ -103,22 +103,18 @@ class SimBridgeCheck(unittest.TestCase):
         rospy.init_node("sim_bridge_check")
         cls.world = load_or_generate(load_world_config(WORLD_YAML), CACHE)
         cls.sitl = FakeSitl(lockstep=True, trajectory=hover_east(ALT_M, SPEED_MPS)).start()
-        log_dir = ARTIFACTS / "logs"
-        log_dir.mkdir(parents=True, exist_ok=True)
-        cls.log = (log_dir / "rostest_sim_bridge_node.log").open("wb")
-        cls.bridge = subprocess.Popen(
+        cls.bridge = Proc(
+            "rostest_sim_bridge_node",
             [
                 "roslaunch",
-                str(REPO / "catkin_ws/src/uav_sim_bridge/launch/sim_bridge.launch"),
+                "uav_sim_bridge",
+                "sim_bridge.launch",
                 f"sim_port:={cls.sitl.port}",
                 f"world:={WORLD_YAML}",
                 f"world_cache_dir:={CACHE}",
                 "lockstep_role:=master",
                 "output:=screen",
             ],
-            stdout=cls.log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
         )
         cls.inbox = Inbox()
         topics = {
@@ -146,14 +142,8 @@ class SimBridgeCheck(unittest.TestCase):
 
     @classmethod
     def tearDownClass(cls) -> None:
-        if cls.bridge.poll() is None:
-            os.killpg(cls.bridge.pid, signal.SIGINT)
-            try:
-                cls.bridge.wait(15)
-            except subprocess.TimeoutExpired:
-                os.killpg(cls.bridge.pid, signal.SIGKILL)
+        cls.bridge.stop(5.0, int_timeout_s=15.0)
         cls.sitl.stop()
-        cls.log.close()
 
     # ------------------------------------------------------------------ tests
     def test_1_clock_advances_by_grants(self) -> None:
@@ -218,18 +208,18 @@ class SimBridgeCheck(unittest.TestCase):
             self.assertAlmostEqual(info.K[0], 320.0)
             self.assertAlmostEqual(info.K[2], 319.5)
             depth, inst = self.inbox.same_stamp(f"{ns}/depth/image_raw", f"{ns}/instance/image_raw")
-            d = image_to_numpy(depth)
-            ids = image_to_numpy(inst)
+            d = image_to_array(depth)
+            ids = image_to_array(inst)
             self.assertTrue(set(np.unique(ids)) <= set(range(len(self.world.objects) + 1)))
             self.assertTrue(np.array_equal(np.isnan(d), ids == 0))
-            xyz, _ = pointcloud2_to_xyzrgb(cloud)
+            xyz, _ = cloud_to_xyzrgb(cloud)
             self.assertTrue(np.all(np.isfinite(xyz)))
             self.assertEqual(cloud.point_step, 16)
             self.assertGreater(len(xyz), 1000)
         # nadir centre depth = height above the ground under the camera (within 1 cm + the mount offset)
         depth = self.inbox.wait("/cameras/nadir/depth/image_raw")
         t = depth.header.stamp.to_sec()
-        d = image_to_numpy(depth)
+        d = image_to_array(depth)
         x = SPEED_MPS * t
         ground = self.world.ground_height_at(x, 0.0, ALT_M)[0]
         centre = float(np.mean(d[239:241, 319:321]))
@@ -304,7 +294,7 @@ class SimBridgeCheck(unittest.TestCase):
         for junk in (b"\xfd\x09garbage", b"\x00" * 300, bytes(range(256))):
             self.sitl.send_raw(junk)
         self.inbox.wait("/uav/sim_state", before + 20, timeout_s=20.0)
-        self.assertIsNone(self.bridge.poll())
+        self.assertTrue(self.bridge.alive(), self.bridge.tail())
 
     def _wait_detection(self, iid: int, camera: str, start: int, *, present: bool) -> DetectionArray:
         deadline = time.monotonic() + 30.0

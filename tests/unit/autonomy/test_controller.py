@@ -24,9 +24,9 @@ from uav_autonomy.core.controller import (
     Telemetry,
     WaypointController,
 )
-from uav_autonomy.core.controller_modes import AutopilotFlavor, FlightMode, px4_custom_mode
 from uav_autonomy.core.patterns import expanding_square
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError
+from uav_common.autopilot_modes import Autopilot, FlightMode
 from uav_common.config import ConfigError, from_mapping
 
 DT = 0.05
@@ -34,7 +34,7 @@ DT = 0.05
 
 @dataclass
 class Px4Model:
-    mode: FlightMode = FlightMode.LOITER
+    mode: FlightMode = FlightMode.AUTO_LOITER
     armed: bool = False
     pos: np.ndarray = field(default_factory=lambda: np.zeros(3))
     speed_mps: float = 8.0
@@ -43,7 +43,7 @@ class Px4Model:
     reject_offboard: int = 0
     link_up: bool = True
     last_heartbeat_s: float | None = None
-    flavor: AutopilotFlavor = AutopilotFlavor.PX4
+    autopilot: Autopilot = Autopilot.PX4
     requests: list[object] = field(default_factory=list)
     heard: Telemetry = field(default_factory=Telemetry)
 
@@ -67,19 +67,19 @@ class Px4Model:
         target = None
         if self.mode is FlightMode.OFFBOARD and self.armed and self.setpoint is not None:
             if not self.setpoint_times or now - self.setpoint_times[-1] > 0.5:
-                self.mode = FlightMode.LOITER  # offboard loss failsafe (COM_OF_LOSS_T)
+                self.mode = FlightMode.AUTO_LOITER  # offboard loss failsafe (COM_OF_LOSS_T)
             else:
                 target = self.setpoint
-        elif self.mode is FlightMode.RTL and self.armed:
+        elif self.mode is FlightMode.AUTO_RTL and self.armed:
             target = np.array([0.0, 0.0, self.pos[2]]) if np.linalg.norm(self.pos[:2]) > 0.5 else np.zeros(3)
-        elif self.mode is FlightMode.LAND and self.armed:
+        elif self.mode is FlightMode.AUTO_LAND and self.armed:
             target = np.array([self.pos[0], self.pos[1], 0.0])
         if target is not None:
             delta = target - self.pos
             dist = float(np.linalg.norm(delta))
             step = self.speed_mps * DT
             self.pos = target.copy() if dist <= step else self.pos + delta / dist * step
-        if self.armed and self.pos[2] < 0.05 and self.mode in (FlightMode.RTL, FlightMode.LAND):
+        if self.armed and self.pos[2] < 0.05 and self.mode in (FlightMode.AUTO_RTL, FlightMode.AUTO_LAND):
             self.armed = False
         if self.link_up:
             self.last_heartbeat_s = now
@@ -90,8 +90,8 @@ class Px4Model:
             return self.heard
         self.heard = Telemetry(
             heartbeat_s=self.last_heartbeat_s,
-            custom_mode=px4_custom_mode(self.mode),
-            flavor=self.flavor,
+            custom_mode=self.mode.custom_mode,
+            autopilot=self.autopilot,
             armed=self.armed,
             in_air=bool(self.pos[2] > 0.5),
             position_enu_m=(float(self.pos[0]), float(self.pos[1]), float(self.pos[2])),
@@ -269,7 +269,7 @@ def test_failsafe_mode_change_yields_at_once() -> None:
     rig.airborne()
     rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)
     rig.run(0.5)
-    rig.ap.mode = FlightMode.RTL  # the autopilot's own failsafe (e.g. low battery)
+    rig.ap.mode = FlightMode.AUTO_RTL  # the autopilot's own failsafe (e.g. low battery)
     failsafe_s = rig.now
     actions = rig.tick()
     assert not any(isinstance(a, SendSetpoint) for a in actions)
@@ -286,11 +286,11 @@ def test_failsafe_while_offboard_is_being_requested_is_not_overridden() -> None:
     replaces it before the heartbeat shows OFFBOARD. A retry would cancel the failsafe: yield instead."""
     rig = Rig(mode_retry_s=0.5)
     rig.airborne()
-    rig.ap.mode = FlightMode.LOITER  # e.g. after an offboard-loss failsafe
+    rig.ap.mode = FlightMode.AUTO_LOITER  # e.g. after an offboard-loss failsafe
     rig.run_until(lambda: rig.ctl.state is ControllerState.IDLE, 5.0)
     rig.ctl.request(ControllerState.HOLD, rig.now)
     rig.run_until(lambda: any(isinstance(a, RequestMode) for t, a in rig.log if t >= rig.now), 5.0)
-    rig.ap.mode = FlightMode.RTL  # the failsafe, between our request and the next heartbeat
+    rig.ap.mode = FlightMode.AUTO_RTL  # the failsafe, between our request and the next heartbeat
     failsafe_s = rig.now
     rig.tick()
     assert rig.ctl.state is ControllerState.RTL
@@ -304,7 +304,7 @@ def test_offboard_requested_from_rtl_by_the_user_is_still_retried() -> None:
     """The vehicle was already in RTL when the user asked for HOLD: retrying that request is right."""
     rig = Rig(mode_retry_s=0.5)
     rig.airborne()
-    rig.ap.mode = FlightMode.RTL
+    rig.ap.mode = FlightMode.AUTO_RTL
     rig.run_until(lambda: rig.ctl.state is ControllerState.RTL, 5.0)
     rig.ap.reject_offboard = 1
     rig.ctl.request(ControllerState.HOLD, rig.now)
@@ -411,7 +411,7 @@ def test_rtl_and_land_requests_use_autopilot_modes() -> None:
     rig.airborne()
     rig.ctl.request(ControllerState.RTL, rig.now)
     actions = rig.tick()
-    assert RequestMode(FlightMode.RTL) in actions
+    assert RequestMode(FlightMode.AUTO_RTL) in actions
     assert not any(isinstance(a, SendSetpoint) for a in actions)
     rig.run_until(lambda: rig.ctl.state is ControllerState.IDLE, 40.0)
     assert rig.ap.pos[2] < 0.1
@@ -450,7 +450,7 @@ def test_idle_request_in_flight_hands_over_to_autopilot_hold() -> None:
     rig.airborne()
     rig.ctl.request(ControllerState.IDLE, rig.now)
     actions = rig.tick()
-    assert actions == [RequestMode(FlightMode.LOITER)]
+    assert actions == [RequestMode(FlightMode.AUTO_LOITER)]
     assert rig.tick() == []
 
 
@@ -459,7 +459,7 @@ def test_ardupilot_guided_takeoff_command_after_arming() -> None:
     t = Telemetry(
         heartbeat_s=0.0,
         custom_mode=4,
-        flavor=AutopilotFlavor.ARDUPILOT,
+        autopilot=Autopilot.ARDUPILOT,
         armed=False,
         in_air=False,
         position_enu_m=(0.0, 0.0, 0.0),

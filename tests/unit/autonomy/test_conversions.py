@@ -6,14 +6,11 @@ import math
 
 import numpy as np
 import pytest
-
-pytest.importorskip("uav_msgs.msg", reason="needs the catkin devel space (scripts/in_env)")
-
 from std_msgs.msg import Header
 
 from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.errors import InvalidInputError
-from uav_autonomy.ros.autonomy_conversions import (
+from uav_autonomy.ros.conversions import (
     color_image_msg,
     float_image_msg,
     grid_layers_from_msg,
@@ -86,8 +83,8 @@ def _mavlink_frame(name: str, *fields: float) -> object:
 
 
 def test_odometry_from_autopilot_telemetry_is_enu_flu() -> None:
-    from uav_autonomy.ros.autonomy_conversions import odometry_msg  # noqa: PLC0415
-    from uav_autonomy.ros.autonomy_mavlink import MavlinkLink  # noqa: PLC0415
+    from uav_autonomy.mavlink.link import MavlinkLink  # noqa: PLC0415
+    from uav_autonomy.ros.conversions import odometry_msg  # noqa: PLC0415
 
     link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, source_component=191, target_system=1,
                        target_component=1, reconnect_after_s=5.0)  # fmt: skip
@@ -112,7 +109,7 @@ def test_odometry_from_autopilot_telemetry_is_enu_flu() -> None:
 
 
 def test_link_stamps_arrivals_on_both_clocks_and_reconnects_only_after_the_wall_floor() -> None:
-    from uav_autonomy.ros.autonomy_mavlink import MavlinkLink  # noqa: PLC0415
+    from uav_autonomy.mavlink.link import MavlinkLink  # noqa: PLC0415
 
     link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, source_component=191, target_system=1,
                        target_component=1, reconnect_after_s=5.0, wall_floor_s=0.5)  # fmt: skip
@@ -137,7 +134,7 @@ def test_octomap_read_from_its_serialized_bytes() -> None:
 
     from octomap_msgs.msg import Octomap  # noqa: PLC0415
 
-    from uav_autonomy.ros.autonomy_conversions import octomap_from_buffer  # noqa: PLC0415
+    from uav_autonomy.ros.conversions import octomap_from_buffer  # noqa: PLC0415
 
     msg = Octomap()
     msg.header.frame_id = "map"

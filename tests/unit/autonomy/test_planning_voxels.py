@@ -11,10 +11,10 @@ import subprocess
 
 import numpy as np
 import pytest
-from helpers.procs import REPO
+from helpers.paths import DEVEL_LIB
 from scipy.spatial import cKDTree
 
-from uav_autonomy.core.mapping_octree import OctreeLeaves, decode_binary_octree
+from uav_autonomy.core.octree_reader import OctreeLeaves, decode_binary_octree
 from uav_autonomy.core.planning import PlannerConfig, path_conflict_m
 from uav_autonomy.core.planning_voxels import (
     decode_octree,
@@ -24,7 +24,7 @@ from uav_autonomy.core.planning_voxels import (
 )
 from uav_autonomy.errors import InvalidInputError, NoPathError
 
-MAP_CORE = REPO / "catkin_ws" / "devel" / "lib" / "uav_autonomy" / "map_core_tests"
+MAP_CORE = DEVEL_LIB / "uav_mapping" / "map_core_tests"
 RES = 1.0  # voxel map resolution in these tests (the map server's is 0.5 m; any works)
 
 
@@ -35,8 +35,7 @@ def _sorted(leaves: OctreeLeaves) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def liboctomap_sample(tmp_path_factory: pytest.TempPathFactory) -> tuple[bytes, float]:
-    if not MAP_CORE.exists():
-        pytest.skip(f"{MAP_CORE} is missing: run `make build`")
+    assert MAP_CORE.exists(), f"{MAP_CORE} is missing: run `make build` (make test builds first)"
     out = tmp_path_factory.mktemp("octree")
     proc = subprocess.run(
         [str(MAP_CORE), "--write-sample", str(out)], capture_output=True, text=True, timeout=60, check=False

@@ -7,7 +7,7 @@ from typing import Any
 from pymavlink.dialects.v10 import ardupilotmega as v1
 from pymavlink.dialects.v20 import ardupilotmega as v2
 
-from mavlink_router.dialect import load_message_table
+from mavlink_router.shell.dialect import load_message_table
 
 TABLE = load_message_table("ardupilotmega")
 KEY = bytes(range(32))

@@ -5,17 +5,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
 from mavlink_router.cli import build_config, parse_args
-from mavlink_router.config import (
+from mavlink_router.core.config import (
     LogMode,
     UdpMode,
     load_config_files,
     parse_config_text,
 )
 from mavlink_router.errors import ConfigError
-
-REPO = Path(__file__).resolve().parents[3]
 
 # examples/config.sample from mavlink-router (minus its long comment block), verbatim.
 UPSTREAM_SAMPLE = """

@@ -5,10 +5,10 @@ from __future__ import annotations
 from mr_build import KEY, TABLE, command_ack, command_long, heartbeat, pack, ping, system_time, unknown_frame
 from pymavlink.dialects.v20 import ardupilotmega as v2
 
-from mavlink_router.core import RouterCore, SigningPolicy
-from mavlink_router.dialect import message_ids
-from mavlink_router.routing import Filters
-from mavlink_router.signing import SIGNING_EPOCH_UNIX_S, STATE_CHANGING_MESSAGES
+from mavlink_router.core.engine import RouterCore, SigningPolicy
+from mavlink_router.core.routing import Filters
+from mavlink_router.core.signing import SIGNING_EPOCH_UNIX_S, STATE_CHANGING_MESSAGES
+from mavlink_router.shell.dialect import message_ids
 
 NOW = 1_800_000_000.0
 TS_NOW = int((NOW - SIGNING_EPOCH_UNIX_S) * 100_000)

@@ -6,8 +6,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from mr_build import TABLE, command_long, pack
 
-from mavlink_router.endpoints import MAX_DATAGRAM_BYTES, pack_datagrams
-from mavlink_router.frames import FrameParser
+from mavlink_router.core.frames import FrameParser
+from mavlink_router.shell.endpoints import MAX_DATAGRAM_BYTES, pack_datagrams
 
 
 @given(st.lists(st.integers(1, 280), max_size=40))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavlink_router.dedup import Deduplicator
+from mavlink_router.core.dedup import Deduplicator
 
 
 def test_window_from_first_sighting() -> None:

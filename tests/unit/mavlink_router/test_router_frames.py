@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from mr_build import KEY, TABLE, command_long, heartbeat, pack, pack_v1, ping, system_time, unknown_frame
 from pymavlink.dialects.v10 import ardupilotmega as v1
 
-from mavlink_router.frames import NO_TARGET, FrameParser, MessageSpec, _x25_crc_binascii, frame_header, x25_crc
+from mavlink_router.core.frames import NO_TARGET, FrameParser, MessageSpec, _x25_crc_binascii, frame_header, x25_crc
 
 
 def reference_crc(data: bytes, crc: int = 0xFFFF) -> int:

@@ -5,8 +5,8 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavlink_router.frames import NO_TARGET
-from mavlink_router.routing import AcceptState, Filters, Learned, RoutingTable, accept_msg
+from mavlink_router.core.frames import NO_TARGET
+from mavlink_router.core.routing import AcceptState, Filters, Learned, RoutingTable, accept_msg
 
 PING = 4
 HEARTBEAT = 0

@@ -7,9 +7,7 @@ import hashlib
 import pytest
 from mr_build import KEY, TABLE, command_long, pack
 
-from mavlink_router.dialect import message_ids
-from mavlink_router.errors import ConfigError
-from mavlink_router.signing import (
+from mavlink_router.core.signing import (
     SIGNING_EPOCH_UNIX_S,
     STATE_CHANGING_MESSAGES,
     SignatureCheck,
@@ -17,6 +15,8 @@ from mavlink_router.signing import (
     parse_key_text,
     signing_timestamp,
 )
+from mavlink_router.errors import ConfigError
+from mavlink_router.shell.dialect import message_ids
 
 NOW = 1_800_000_000.0
 TS = signing_timestamp(NOW)

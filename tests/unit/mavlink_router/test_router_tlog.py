@@ -8,7 +8,7 @@ from pathlib import Path
 from mr_build import command_long, heartbeat, pack
 from pymavlink import mavutil
 
-from mavlink_router.tlog import TelemetryLog, next_log_path
+from mavlink_router.shell.tlog import TelemetryLog, next_log_path
 
 T0 = 1_800_000_000.25
 

@@ -7,9 +7,10 @@ from collections.abc import Iterator
 import pytest
 from sim_worlds import DEFAULT_WORLD_YAML, flat_config, small_config
 
-from uav_sim_bridge.core.world import World, generate_world
+from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import PeopleConfig, load_world_config
 from uav_sim_bridge.render import Renderer
+from uav_sim_bridge.shell.world_store import generate_world
 
 
 @pytest.fixture(scope="session")

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
+
+from helpers.paths import REPO
 
 from uav_sim_bridge.core.world_config import (
     ForestConfig,
@@ -14,7 +15,6 @@ from uav_sim_bridge.core.world_config import (
     WorldConfig,
 )
 
-REPO = Path(__file__).resolve().parents[3]
 DEFAULT_WORLD_YAML = REPO / "config" / "worlds" / "default.yaml"
 
 

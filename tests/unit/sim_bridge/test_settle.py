@@ -1,4 +1,4 @@
-"""uav_sim_bridge.settle: "is the run idle?" over a real process tree (the determinism mechanism)."""
+"""uav_sim_bridge.shell.settle: "is the run idle?" over a real process tree (the determinism mechanism)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import subprocess
 import sys
 import time
 
-from uav_sim_bridge.settle import Settle
+from uav_sim_bridge.shell.settle import Settle
 
 
 def test_an_idle_tree_settles_and_a_busy_child_does_not() -> None:

@@ -7,12 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.paths import CONFIG
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_common.config import ConfigError, from_mapping, load_config
 from uav_common.geo import GeoPoint, LocalProjection
-from uav_sim_bridge.config import REPO_ROOT, SimBridgeConfig, merge_overrides, resolve_world_path
+from uav_sim_bridge.config import SimBridgeConfig, resolve_world_path
 from uav_sim_bridge.core.schedule import LockstepConfig, RateSchedule
 from uav_sim_bridge.core.sensor_noise import DepthNoiseConfig, PoseNoise, PoseNoiseConfig, degrade_depth
 from uav_sim_bridge.core.transforms import RigidTransform
@@ -116,12 +117,12 @@ def test_pose_noise_is_bounded_and_reproducible() -> None:
 
 
 def test_shipped_config_loads() -> None:
-    cfg = load_config(SimBridgeConfig, REPO_ROOT / "config" / "sim_bridge.yaml")
+    cfg = load_config(SimBridgeConfig, CONFIG / "sim_bridge.yaml")
     assert set(cfg.cameras) == {"nadir", "forward"}
     assert cfg.cameras["nadir"].mount.rpy_deg == (0.0, 90.0, 0.0)
     assert cfg.lockstep.role == "master"
     assert cfg.detections.max_range_m == 100.0
-    assert cfg.world_yaml() == REPO_ROOT / "config" / "worlds" / "default.yaml"
+    assert cfg.world_yaml() == CONFIG / "worlds" / "default.yaml"
 
 
 @pytest.mark.parametrize(
@@ -142,17 +143,11 @@ def test_bad_node_config_is_a_clear_error(data: dict, match: str) -> None:
         from_mapping(SimBridgeConfig, data, source="test")
 
 
-def test_overrides_and_world_paths(tmp_path: Path) -> None:
-    base = {"cameras": {"nadir": {"rate_hz": 10, "hfov_deg": 90}}, "lockstep": {"role": "master"}}
-    merged = merge_overrides(base, {"cameras": {"nadir": {"rate_hz": 5}}, "world": "x"})
-    assert merged == {
-        "cameras": {"nadir": {"rate_hz": 5, "hfov_deg": 90}},
-        "lockstep": {"role": "master"},
-        "world": "x",
-    }
-    assert base["cameras"]["nadir"]["rate_hz"] == 10  # inputs untouched
-    assert resolve_world_path("default") == REPO_ROOT / "config/worlds/default.yaml"
+def test_world_paths(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert resolve_world_path("default") == CONFIG / "worlds/default.yaml"
     assert resolve_world_path("hills", tmp_path) == tmp_path / "hills.yaml"
-    assert resolve_world_path("config/worlds/default.yaml").resolve() == REPO_ROOT / "config/worlds/default.yaml"
+    monkeypatch.chdir(tmp_path)  # as ROS nodes, which run in ~/.ros: relative paths are the config folder's
+    assert resolve_world_path("config/worlds/default.yaml").resolve() == CONFIG / "worlds/default.yaml"
+    assert resolve_world_path("worlds/default.yaml").resolve() == CONFIG / "worlds/default.yaml"
     assert resolve_world_path(str(tmp_path / "w.yaml")) == tmp_path / "w.yaml"
     assert LockstepConfig().steps_per_grant == 5

@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from sim_worlds import REPO
 
-from uav_sim_bridge.world_cli import main
+from uav_sim_bridge.cli.world import main
 
 SMALL = """name: cli
 seed: 2

@@ -11,7 +11,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from uav_common.geo import GeoPoint, LocalProjection
-from uav_sim_bridge.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
+from uav_sim_bridge.shell.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 

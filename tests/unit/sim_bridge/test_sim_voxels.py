@@ -5,9 +5,11 @@ import pytest
 import trimesh
 from sim_worlds import flat_config
 
-from uav_sim_bridge.core.voxels import object_surface_voxels, pack_keys, union_keys, unpack_keys, voxel_centres
-from uav_sim_bridge.core.world import World, generate_world
+from uav_common.voxel_keys import pack_keys, unpack_keys
+from uav_sim_bridge.core.voxels import object_surface_voxels, union_keys, voxel_centres
+from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import CustomObjectConfig, ObjectClass
+from uav_sim_bridge.shell.world_store import generate_world
 
 
 def test_flat_terrain_is_one_layer(flat_world: World) -> None:

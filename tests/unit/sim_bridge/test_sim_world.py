@@ -12,9 +12,11 @@ import trimesh
 from sim_worlds import DEFAULT_WORLD_YAML, flat_config, small_config
 
 from uav_common.config import ConfigError
-from uav_sim_bridge.core.world import World, config_key, generate_world, load_or_generate
+from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import CustomObjectConfig, ObjectClass, TerrainConfig, load_world_config
 from uav_sim_bridge.errors import WorldFileError
+from uav_sim_bridge.shell.world_io import export_mesh, export_objects_json
+from uav_sim_bridge.shell.world_store import config_key, generate_world, load_or_generate, load_world_dir, save_world
 
 
 def test_same_seed_same_world_other_seed_other_world(small_world: World) -> None:
@@ -119,8 +121,8 @@ def test_surface_height_sees_roofs_and_roads(default_world: World) -> None:
 
 
 def test_save_load_round_trip_and_corruption(small_world: World, tmp_path: Path) -> None:
-    small_world.save(tmp_path / "w")
-    loaded = World.load(tmp_path / "w")
+    save_world(small_world, tmp_path / "w")
+    loaded = load_world_dir(tmp_path / "w")
     assert loaded.hash == small_world.hash
     assert loaded.config == small_world.config
     assert loaded.objects == small_world.objects
@@ -129,12 +131,12 @@ def test_save_load_round_trip_and_corruption(small_world: World, tmp_path: Path)
     arrays["vertices_m"][0, 0] += 1.0
     np.savez(tmp_path / "w" / "world.npz", **arrays)
     with pytest.raises(WorldFileError, match="hash mismatch"):
-        World.load(tmp_path / "w")
+        load_world_dir(tmp_path / "w")
     (tmp_path / "w" / "objects.json").write_text("[{")
     with pytest.raises(WorldFileError, match="corrupt"):
-        World.load(tmp_path / "w")
+        load_world_dir(tmp_path / "w")
     with pytest.raises(WorldFileError, match="not a saved world"):
-        World.load(tmp_path / "nothing")
+        load_world_dir(tmp_path / "nothing")
 
 
 def test_load_or_generate_uses_and_repairs_the_cache(tmp_path: Path) -> None:
@@ -149,18 +151,18 @@ def test_load_or_generate_uses_and_repairs_the_cache(tmp_path: Path) -> None:
 
 
 def test_exports(small_world: World, tmp_path: Path) -> None:
-    small_world.export_mesh(tmp_path / "world.ply")
+    export_mesh(small_world, tmp_path / "world.ply")
     mesh = trimesh.load(tmp_path / "world.ply", force="mesh")
     assert len(mesh.faces) == int((small_world.mesh.face_lod != 2).sum())
-    small_world.export_mesh(tmp_path / "world.glb")
+    export_mesh(small_world, tmp_path / "world.glb")
     assert (tmp_path / "world.glb").stat().st_size > 1000
-    small_world.export_objects_json(tmp_path / "objects.json")
+    export_objects_json(small_world, tmp_path / "objects.json")
     doc = json.loads((tmp_path / "objects.json").read_text())
     assert doc["world"]["hash"] == small_world.hash
     assert len(doc["objects"]) == len(small_world.objects)
     assert {o["class"] for o in doc["objects"]} == {"terrain", "road", "building", "tree", "person", "vehicle"}
     with pytest.raises(WorldFileError, match="unknown mesh format"):
-        small_world.export_mesh(tmp_path / "world.xyz")
+        export_mesh(small_world, tmp_path / "world.xyz")
 
 
 def test_user_heightmap_and_mesh(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ import struct
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -16,8 +17,6 @@ from sitl.core.params import PARAM_SPECS, ParamTable, ParamType, decode_wire_val
 from sitl.errors import ParamFileError, SitlConfigError
 from sitl.shell.param_file import ParamFile
 from sitl.vehicle import params_for_config
-
-REPO = Path(__file__).resolve().parents[3]
 
 
 def _not_a_nan_pattern(value: int) -> bool:

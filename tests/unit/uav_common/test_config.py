@@ -7,7 +7,15 @@ from typing import Literal
 
 import pytest
 
-from uav_common.config import ConfigError, from_mapping, load_config, to_mapping
+from uav_common.config import (
+    ConfigError,
+    config_errors_as,
+    deep_merge,
+    from_mapping,
+    load_config,
+    set_dotted,
+    to_mapping,
+)
 
 
 class Mode(enum.Enum):
@@ -105,3 +113,56 @@ def test_section_loading(tmp_path: Path) -> None:
     assert load_config(Vehicle, path, section="vehicle").name == "a"
     with pytest.raises(ConfigError, match="missing section 'nothing'"):
         load_config(Vehicle, path, section="nothing")
+
+
+# ---- deep_merge, set_dotted, config_errors_as: the one override merge of every package ----
+
+
+def test_deep_merge_merges_mappings_at_every_depth_and_replaces_the_rest() -> None:
+    base = {"cameras": {"nadir": {"rate_hz": 10, "hfov_deg": 90}}, "list": [1, 2], "x": 1}
+    merged = deep_merge(base, {"cameras": {"nadir": {"rate_hz": 5}, "forward": {}}, "list": [3], "x": None})
+    assert merged == {"cameras": {"nadir": {"rate_hz": 5, "hfov_deg": 90}, "forward": {}}, "list": [3], "x": None}
+
+
+def test_deep_merge_never_changes_or_shares_its_inputs() -> None:
+    """A copy that drifted mutated the caller's defaults; the result must own every mutable value."""
+    base = {"a": {"b": [1, 2]}, "c": {"d": 1}}
+    over = {"c": {"e": [9]}}
+    merged = deep_merge(base, over)
+    merged["a"]["b"].append(3)
+    merged["c"]["e"].append(10)
+    assert base == {"a": {"b": [1, 2]}, "c": {"d": 1}}
+    assert over == {"c": {"e": [9]}}
+
+
+def test_a_mapping_replaces_a_scalar_and_a_scalar_a_mapping() -> None:
+    assert deep_merge({"a": 1}, {"a": {"b": 2}}) == {"a": {"b": 2}}
+    assert deep_merge({"a": {"b": 2}}, {"a": 3}) == {"a": 3}
+
+
+def test_set_dotted_builds_sections_and_refuses_to_descend_into_a_value() -> None:
+    data: dict[str, object] = {"links": {"gcs": {"port": 1}}}
+    set_dotted(data, "links.gcs.port", 14550)
+    set_dotted(data, "links.api.enabled", False)
+    assert data == {"links": {"gcs": {"port": 14550}, "api": {"enabled": False}}}
+    with pytest.raises(ConfigError, match="'port' is not a section"):
+        set_dotted(data, "links.gcs.port.x", 1)
+    with pytest.raises(ConfigError, match="empty key part"):
+        set_dotted(data, "links..x", 1)
+
+
+class _PkgError(Exception):
+    pass
+
+
+class _PkgConfigError(_PkgError, ConfigError):
+    pass
+
+
+def test_config_errors_become_the_packages_own_with_the_same_message() -> None:
+    with pytest.raises(_PkgConfigError, match="bad key") as caught, config_errors_as(_PkgConfigError):
+        raise ConfigError("x.yaml: bad key")
+    assert isinstance(caught.value, _PkgError)  # a caller catching the package's root sees it
+    assert isinstance(caught.value.__cause__, ConfigError)
+    with pytest.raises(ValueError, match="other"), config_errors_as(_PkgConfigError):
+        raise ValueError("other")  # other errors pass through untouched

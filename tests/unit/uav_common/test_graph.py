@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from uav_common.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
+from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 
 PUBS = [("/cam/depth", ["/sim_bridge"]), ("/cam/color", ["/sim_bridge"]), ("/odom", ["/sim_bridge", "/replayer"])]
 SUBS = [("/cam/depth", ["/record", "/map_server"]), ("/cam/color", ["/record"]), ("/odom", ["/record"])]

@@ -8,6 +8,6 @@ Submodules:
 * :mod:`uav_common.waiting`: ``wait_until`` with an injected clock.
 """
 
-from uav_common.errors import ConfigError, UavCommonError, WaitTimeoutError
+from uav_common.errors import ConfigError, ResourceError, UavCommonError, WaitTimeoutError
 
-__all__ = ["ConfigError", "UavCommonError", "WaitTimeoutError"]
+__all__ = ["ConfigError", "ResourceError", "UavCommonError", "WaitTimeoutError"]

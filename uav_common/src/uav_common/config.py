@@ -30,12 +30,14 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import dataclasses
 import enum
 import math
 import types
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -45,7 +47,16 @@ from uav_common.errors import ConfigError
 
 T = TypeVar("T")
 
-__all__ = ["ConfigError", "from_mapping", "load_config", "load_yaml_mapping", "to_mapping"]
+__all__ = [
+    "ConfigError",
+    "config_errors_as",
+    "deep_merge",
+    "from_mapping",
+    "load_config",
+    "load_yaml_mapping",
+    "set_dotted",
+    "to_mapping",
+]
 
 
 def load_yaml_mapping(path: Path) -> dict[str, Any]:
@@ -73,6 +84,59 @@ def load_yaml_mapping(path: Path) -> dict[str, Any]:
         msg = f"{path}: top level must be a mapping of settings, got {type(data).__name__}"
         raise ConfigError(msg)
     return data
+
+
+@contextlib.contextmanager
+def config_errors_as(cls: type[ConfigError]) -> Iterator[None]:
+    """Re-raise a :class:`ConfigError` from the block as ``cls``, a package's own config error.
+
+    Each package's config error derives from both its root error and :class:`ConfigError`
+    (``class ScenarioConfigError(ScenarioError, ConfigError)``), so a caller catching the
+    package's root catches configuration mistakes too. The message is kept as it is.
+    """
+    try:
+        yield
+    except cls:
+        raise
+    except ConfigError as err:
+        raise cls(str(err)) from err
+
+
+def deep_merge(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``overrides`` merged over ``base``, as a new dict; neither input is changed.
+
+    Mappings merge key by key, at every depth; any other value in ``overrides`` (a list,
+    a scalar, ``None``) replaces the one in ``base`` whole. The result shares no mutable
+    value with either input, so changing it never changes a caller's defaults.
+    """
+    out: dict[str, Any] = {str(k): copy.deepcopy(v) for k, v in base.items()}
+    for key, value in overrides.items():
+        current = out.get(key)
+        if isinstance(value, Mapping) and isinstance(current, Mapping):
+            out[key] = deep_merge(current, value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def set_dotted(data: dict[str, Any], dotted_key: str, value: Any) -> None:
+    """Set ``a.b.c = value`` in a nested dict, creating sections as needed (``--set a.b.c=value``).
+
+    Raises:
+        ConfigError: an intermediate key holds a value that is not a mapping.
+    """
+    parts = dotted_key.split(".")
+    if not all(parts):
+        msg = f"cannot set {dotted_key!r}: empty key part (use section.key)"
+        raise ConfigError(msg)
+    node = data
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            msg = f"cannot set '{dotted_key}': '{part}' is not a section"
+            raise ConfigError(msg)
+        node = child
+    node[parts[-1]] = value
 
 
 def load_config(cls: type[T], path: Path, *, section: str | None = None) -> T:

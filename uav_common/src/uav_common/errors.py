@@ -1,6 +1,19 @@
-"""Exception hierarchy of :mod:`uav_common`."""
+"""Exception hierarchy of :mod:`uav_common`, and the two error kinds every package shares.
+
+Every package has one root error (``SitlError``, ``SimBridgeError``, ``UavAutonomyError``,
+``PerceptionError``, ``ScenarioError``...). Two kinds of failure cut across them, and each
+package's own class for them derives from both its root and the shared kind, so a caller
+can catch either (``except ScenarioError`` or ``except ConfigError``):
+
+* :class:`ConfigError`: a configuration file, parameter or argument is wrong. The user fixes
+  the input; programs exit with :attr:`uav_common.exit_codes.ExitCode.CONFIG`.
+* :class:`ResourceError`: something the program needs is not available (a port in use, no
+  EGL/GL, a missing build product). Programs exit with ``ExitCode.RESOURCE``.
+"""
 
 from __future__ import annotations
+
+__all__ = ["ConfigError", "ResourceError", "UavCommonError", "WaitTimeoutError"]
 
 
 class UavCommonError(Exception):
@@ -8,10 +21,17 @@ class UavCommonError(Exception):
 
 
 class ConfigError(UavCommonError):
-    """A configuration file or mapping is missing, malformed or invalid.
+    """A configuration file, mapping, parameter or argument is missing, malformed or invalid.
 
     The message always names the source (file or parameter namespace), the key
     and what was expected, so it can be shown to a user as-is.
+    """
+
+
+class ResourceError(UavCommonError):
+    """A resource the program needs is unavailable: a port in use, no GL context, a missing build product.
+
+    The message names the resource and what to do (free the port, install the package, ``make build``).
     """
 
 

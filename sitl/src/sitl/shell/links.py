@@ -24,6 +24,7 @@ from fastcrc.crc16 import mcrf4xx
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.errors import LinkError
+from uav_common.mavlink_parser import reset_parser
 
 __all__ = [
     "LinkStats",
@@ -229,10 +230,10 @@ class MavLink:
         except Exception as err:  # pymavlink can raise on pathological input; never let it out
             stats.bad(f"parser error: {type(err).__name__}")
             msgs = []
-            _reset_parser(parser)
+            reset_parser(parser)
         if datagram and parser.buf_len() > 0:
             stats.rx_truncated += 1
-            _reset_parser(parser)
+            reset_parser(parser)
         for msg in msgs:
             msg_type = msg.get_type()
             if msg_type == "BAD_DATA":
@@ -247,12 +248,6 @@ class MavLink:
                 continue
             stats.rx_messages += 1
             yield msg
-
-
-def _reset_parser(parser: Any) -> None:
-    parser.buf = bytearray()
-    parser.buf_index = 0
-    parser.expected_length = mavlink.HEADER_LEN_V1 + 2
 
 
 def bind_error(what: str, host: str, port: int, err: OSError) -> LinkError:

@@ -1,16 +1,22 @@
 """Exception hierarchy of :mod:`uav_autonomy`.
 
 Every error raised on purpose by the package derives from :class:`UavAutonomyError`.
-Other components of the package may add subclasses here. Configuration files are
-loaded by :mod:`uav_common.config`, whose :class:`uav_common.errors.ConfigError` is
-re-used as-is rather than duplicated.
+Configuration mistakes are :class:`AutonomyConfigError`, which is also a
+:class:`uav_common.errors.ConfigError`; a link that cannot be opened is also a
+:class:`uav_common.errors.ResourceError` (the exit codes of ``uav_common.exit_codes``).
 """
 
 from __future__ import annotations
 
+from uav_common.errors import ConfigError, ResourceError
+
 
 class UavAutonomyError(Exception):
     """Root of every error raised on purpose by :mod:`uav_autonomy`."""
+
+
+class AutonomyConfigError(UavAutonomyError, ConfigError):
+    """A settings file, section, key or private parameter of an autonomy node is wrong."""
 
 
 class InvalidInputError(UavAutonomyError, ValueError):
@@ -37,5 +43,5 @@ class InvalidTransitionError(ControllerError):
     """A requested controller state change is not allowed from the current state."""
 
 
-class MavlinkLinkError(ControllerError):
+class MavlinkLinkError(ControllerError, ResourceError):
     """The MAVLink connection cannot be opened or used."""

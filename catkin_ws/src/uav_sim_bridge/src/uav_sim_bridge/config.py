@@ -3,16 +3,15 @@
 Loaded once at start-up into :class:`SimBridgeConfig` through
 :func:`uav_common.config.from_mapping` (strict: unknown keys are errors).  The node
 deep-merges the ``~overrides`` parameter and a few convenience parameters (``~world``,
-``~sim_host``...) over the file first, see :func:`merge_overrides`.
+``~sim_host``...) over the file first (:func:`uav_common.config.deep_merge`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
+from uav_common.paths import config_dir
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
 from uav_sim_bridge.core.collision import CollisionConfig
 from uav_sim_bridge.core.detections import DetectionConfig
@@ -21,19 +20,14 @@ from uav_sim_bridge.core.schedule import LockstepConfig
 from uav_sim_bridge.core.sensor_noise import NoiseConfig
 
 __all__ = [
-    "REPO_ROOT",
     "GroundTruthDetectionsConfig",
     "HomeConfig",
     "PublishConfig",
     "SimBridgeConfig",
     "SimLinkConfig",
     "default_cameras",
-    "merge_overrides",
     "resolve_world_path",
 ]
-
-# catkin_ws/src/uav_sim_bridge/src/uav_sim_bridge/config.py -> repository root
-REPO_ROOT = Path(__file__).resolve().parents[5]
 
 
 def default_cameras() -> dict[str, CameraConfig]:
@@ -148,22 +142,18 @@ def resolve_world_path(world: str, worlds_dir: Path | None = None) -> Path:
     """A world name (``default`` -> ``config/worlds/default.yaml``) or a path to a YAML file.
 
     A relative path that does not exist from the working directory (ROS nodes run in
-    ``~/.ros``) is taken relative to the repository root.
+    ``~/.ros``) is looked up in the project's configuration folder (``config/worlds/x.yaml``
+    and ``worlds/x.yaml`` both name ``<config>/worlds/x.yaml``), found by
+    :func:`uav_common.paths.config_dir` in a checkout and in an install space alike.
+
+    Raises:
+        ConfigError: a world name with no worlds folder given and no configuration folder found.
     """
     if world.endswith((".yaml", ".yml")) or "/" in world:
         path = Path(world).expanduser()
-        if not path.is_absolute() and not path.exists() and (REPO_ROOT / path).exists():
-            return REPO_ROOT / path
-        return path
-    return (worlds_dir or REPO_ROOT / "config" / "worlds") / f"{world}.yaml"
-
-
-def merge_overrides(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """Deep-merge ``overrides`` into ``base`` (mappings merge key by key, anything else replaces)."""
-    out = dict(base)
-    for key, value in overrides.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = merge_overrides(out[key], value)
-        else:
-            out[key] = value
-    return out
+        if path.is_absolute() or path.exists():
+            return path
+        base = config_dir()
+        inside = Path(*path.parts[1:]) if path.parts[:1] == ("config",) else path
+        return base / inside if (base / inside).exists() else path
+    return (worlds_dir or config_dir() / "worlds") / f"{world}.yaml"

@@ -1,19 +1,21 @@
-"""Exception hierarchy of :mod:`uav_sim_bridge`.
+"""The one exception hierarchy of :mod:`uav_sim_bridge`.
 
 Every error raised on purpose by this package derives from :class:`SimBridgeError`,
 so a caller can catch the package's failures without catching programming errors.
-Messages name the file, key or frame involved so they can be shown to a user as-is.
+Configuration mistakes are :class:`SimBridgeConfigError` (also a
+:class:`uav_common.errors.ConfigError`); a renderer or link that cannot be opened is
+also a :class:`uav_common.errors.ResourceError`. Messages name the file, key or frame
+involved so they can be shown to a user as-is.
 """
 
 from __future__ import annotations
 
-from uav_common.errors import ConfigError
+from uav_common.errors import ConfigError, ResourceError
 
 __all__ = [
     "CameraError",
-    "ConfigError",
-    "PointCloudLayoutError",
     "RenderError",
+    "SimBridgeConfigError",
     "SimBridgeError",
     "SimLinkError",
     "WorldError",
@@ -25,6 +27,10 @@ class SimBridgeError(Exception):
     """Root of every error raised by :mod:`uav_sim_bridge`."""
 
 
+class SimBridgeConfigError(SimBridgeError, ConfigError):
+    """The bridge's configuration (file, ``~params``, world config) is invalid."""
+
+
 class WorldError(SimBridgeError):
     """The world cannot be generated from its configuration (e.g. no room for the villages)."""
 
@@ -33,17 +39,13 @@ class WorldFileError(WorldError):
     """A world file (cache, heightmap image, user mesh) is missing, unreadable or malformed."""
 
 
-class CameraError(SimBridgeError):
-    """Invalid camera intrinsics, mount or image shape."""
+class CameraError(SimBridgeError, ValueError):
+    """Invalid camera intrinsics, mount, pose or image shape (a ``ValueError`` too, so config loading reports it)."""
 
 
-class RenderError(SimBridgeError):
+class RenderError(SimBridgeError, ResourceError):
     """The OpenGL renderer could not be created or used (no EGL, wrong thread, ...)."""
 
 
-class SimLinkError(SimBridgeError):
+class SimLinkError(SimBridgeError, ResourceError):
     """The simulation link to the SITL failed (socket error, protocol violation, timeout)."""
-
-
-class PointCloudLayoutError(SimBridgeError):
-    """A PointCloud2 does not have the project's x, y, z, rgb float32 layout."""

@@ -1,6 +1,6 @@
 """The waypoint controller's decision logic: a pure state machine with time passed in.
 
-The MAVLink shell (:mod:`uav_autonomy.ros.autonomy_mavlink`) calls
+The MAVLink shell (:mod:`uav_autonomy.mavlink.link`) calls
 :meth:`WaypointController.step` at ``setpoint_rate_hz`` with the latest
 :class:`Telemetry` and executes the returned actions; ROS services call
 :meth:`WaypointController.request`. Positions are ``map`` ENU metres (z up, relative
@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from uav_autonomy.core.controller_modes import AutopilotFlavor, FlightMode, decode_mode, mode_name
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError
+from uav_common.autopilot_modes import Autopilot, FlightMode, decode_custom_mode, mode_name
 
 __all__ = [
     "OFFBOARD_STATES",
@@ -88,7 +88,7 @@ OFFBOARD_STATES = frozenset(
         ControllerState.HOLD,
     }
 )
-_AUTOPILOT_STATES = {ControllerState.RTL: FlightMode.RTL, ControllerState.LAND: FlightMode.LAND}
+_AUTOPILOT_STATES = {ControllerState.RTL: FlightMode.AUTO_RTL, ControllerState.LAND: FlightMode.AUTO_LAND}
 
 
 @dataclass(frozen=True)
@@ -170,7 +170,7 @@ class Telemetry:
         heartbeat_s: arrival time of the last autopilot HEARTBEAT (None: never).
         heartbeat_wall_s: the same arrival on the wall clock (None: the shell has no wall clock).
         custom_mode: its ``custom_mode``.
-        flavor: mode table of the autopilot.
+        autopilot: mode table of the autopilot.
         armed: ``base_mode`` has the armed flag.
         in_air: the vehicle is flying (EXTENDED_SYS_STATE, or armed and > 1 m up).
         position_enu_m: last LOCAL_POSITION_NED converted to ENU (None: never).
@@ -181,7 +181,7 @@ class Telemetry:
 
     heartbeat_s: float | None = None
     custom_mode: int = 0
-    flavor: AutopilotFlavor = AutopilotFlavor.PX4
+    autopilot: Autopilot = Autopilot.PX4
     armed: bool = False
     in_air: bool = False
     position_enu_m: Vec3 | None = None
@@ -191,12 +191,13 @@ class Telemetry:
     position_wall_s: float | None = None
 
     @property
-    def mode(self) -> FlightMode:
-        return decode_mode(self.flavor, self.custom_mode)
+    def mode(self) -> FlightMode | None:
+        """The decoded mode; ``None`` for one outside the table (or before the first heartbeat)."""
+        return decode_custom_mode(self.autopilot, self.custom_mode)
 
     @property
     def mode_name(self) -> str:
-        return "" if self.heartbeat_s is None else mode_name(self.flavor, self.custom_mode)
+        return "" if self.heartbeat_s is None else mode_name(self.autopilot, self.custom_mode)
 
 
 @dataclass(frozen=True)
@@ -489,11 +490,11 @@ class WaypointController:
         """IDLE on request: while flying in OFFBOARD, hand the vehicle to the autopilot's hold mode."""
         t = self._telemetry
         if self._state in OFFBOARD_STATES and t.in_air and t.mode is FlightMode.OFFBOARD:
-            self._queued.append(RequestMode(FlightMode.LOITER))
+            self._queued.append(RequestMode(FlightMode.AUTO_LOITER))
             reason += "; asked the autopilot to hold (LOITER)"
         self._go_idle(reason)
 
-    def _yield_to(self, mode: FlightMode, what: str) -> None:
+    def _yield_to(self, mode: FlightMode | None, what: str) -> None:
         """The autopilot changed mode under us: stop at once and mirror RTL/LAND."""
         text = f"{what}: autopilot now in {self._telemetry.mode_name}; yielded control"
         for state, state_mode in _AUTOPILOT_STATES.items():
@@ -539,13 +540,13 @@ class WaypointController:
                 self._go_idle(f"{self._state.value} complete: landed and disarmed")
             return []
         if req.confirmed:
-            self._yield_to(mode, f"autopilot left {req.mode.value}")
+            self._yield_to(mode, f"autopilot left {req.mode.name_for(t.autopilot)}")
             return []
         if req.last_request_s is None or now_s - req.last_request_s >= self.config.mode_retry_s:
             if req.attempts >= self.config.max_mode_attempts:
                 if not self._wall_floor_passed(req.last_request_wall_s):
                     return []
-                self._go_idle(f"autopilot did not enter {req.mode.value} after {req.attempts} requests")
+                self._go_idle(f"autopilot did not enter {req.mode.name_for(t.autopilot)} after {req.attempts} requests")
                 return []
             req.attempts += 1
             req.last_request_s = now_s
@@ -600,7 +601,11 @@ class WaypointController:
             eng.offboard_confirmed = True
             self._event(f"autopilot confirmed {t.mode_name}")
             return []
-        if eng.mode_attempts > 0 and t.mode in (FlightMode.RTL, FlightMode.LAND) and t.mode is not eng.mode_at_request:
+        if (
+            eng.mode_attempts > 0
+            and t.mode in (FlightMode.AUTO_RTL, FlightMode.AUTO_LAND)
+            and t.mode is not eng.mode_at_request
+        ):
             # A failsafe (or the pilot) sent the vehicle home or down while OFFBOARD was being requested,
             # possibly after the autopilot had already accepted it: never fight that with a retry.
             self._yield_to(t.mode, "autopilot switched while OFFBOARD was being requested (failsafe or pilot)")
@@ -639,7 +644,7 @@ class WaypointController:
             eng.last_arm_request_s = now_s
             eng.last_arm_request_wall_s = self._now_wall_s
             return [RequestArm(arm=True)]
-        if t.flavor is AutopilotFlavor.ARDUPILOT and not eng.takeoff_sent:
+        if t.autopilot is Autopilot.ARDUPILOT and not eng.takeoff_sent:
             eng.takeoff_sent = True
             return [RequestTakeoff(cfg.takeoff_height_m)]
         return []

@@ -43,9 +43,13 @@ __all__ = [
     "ElevationMap",
     "PlannerConfig",
     "VoxelGrid",
+    "build_voxels",
+    "check_finite_point",
     "dem_conflict_m",
+    "dilate3",
     "goal_altitude_m",
     "max_elevation_along_m",
+    "pad_grid",
     "path_conflict_m",
     "plan",
     "plan_astar",
@@ -132,7 +136,8 @@ class ElevationMap:
         return math.nan if cell is None else float(self.elevation_m[cell])
 
 
-def _check_point(name: str, values: tuple[float, ...]) -> None:
+def check_finite_point(name: str, values: tuple[float, ...]) -> None:
+    """Raise :class:`InvalidInputError` naming ``name`` unless every coordinate is finite."""
     if not all(math.isfinite(v) for v in values):
         msg = f"{name} must be finite, got {values}"
         raise InvalidInputError(msg)
@@ -185,8 +190,8 @@ def plan_straight(
         NoPathError: the segment leaves the geofence or enters a no-fly zone, or
             the cruise altitude exceeds ``max_altitude_m``.
     """
-    _check_point("start", start_enu)
-    _check_point("goal", goal_xy)
+    check_finite_point("start", start_enu)
+    check_finite_point("goal", goal_xy)
     sx, sy, sz = start_enu
     goal_z = goal_altitude_m(dem, goal_xy, config)
     highest = max_elevation_along_m(dem, (sx, sy), goal_xy)
@@ -283,7 +288,7 @@ def _surface_on_blocks(
     return surface.reshape(ny, nx).astype(np.float32)
 
 
-def _dilate3(grid: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+def dilate3(grid: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
     """3x3 max filter. A move between neighbouring voxel centres passes over the
     blocks around its source only, so checking a voxel against the dilated
     surface keeps the clearance along every move, not just at voxel centres."""
@@ -291,9 +296,10 @@ def _dilate3(grid: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
     return np.asarray(out, dtype=np.float32)
 
 
-def _build_voxels(
+def build_voxels(
     dem: ElevationMap, start: tuple[float, float, float], goal: tuple[float, float, float], config: PlannerConfig
 ) -> VoxelGrid:
+    """The free-space voxel grid of a 2.5D elevation map around ``start`` and ``goal`` (for :func:`search_voxels`)."""
     x_min, x_max, y_min, y_max = dem.spec.extent_m()
     xs = [x_min, x_max, start[0], goal[0]]
     ys = [y_min, y_max, start[1], goal[1]]
@@ -312,13 +318,13 @@ def _build_voxels(
         raise PlanningError(msg)
     raw = _surface_on_blocks(dem, (x0, y0), (ny, nx), res)
     unknown_raw = np.isnan(raw)
-    surface = _dilate3(np.where(unknown_raw, np.float32(config.unknown_elevation_m), raw).astype(np.float32))
-    unknown = _dilate3(unknown_raw.astype(np.float32)) > 0.5
+    surface = dilate3(np.where(unknown_raw, np.float32(config.unknown_elevation_m), raw).astype(np.float32))
+    unknown = dilate3(unknown_raw.astype(np.float32)) > 0.5
     # Each voxel is a box around its centre: free if its bottom keeps the clearance.
     bottoms = config.min_altitude_m + (np.arange(nz) - 0.5) * config.voxel_z_m
     free = bottoms[:, None, None] >= surface[None, :, :] + config.clearance_m
     # Hazard: too close to a *known* surface (unknown columns are not obstacles for path checks).
-    known_surface = _dilate3(np.where(unknown_raw, np.float32(-np.inf), raw).astype(np.float32))
+    known_surface = dilate3(np.where(unknown_raw, np.float32(-np.inf), raw).astype(np.float32))
     hazard = bottoms[:, None, None] < known_surface[None, :, :] + config.clearance_m
     column_ok = np.ones((ny, nx), dtype=bool)
     if config.unknown_space == "occupied":
@@ -330,12 +336,15 @@ def _build_voxels(
         column_ok &= points_in_polygon(centers, as_polygon(config.geofence_xy_m, "geofence_xy_m"))
     for i, zone in enumerate(config.no_fly_zones_xy_m):
         column_ok &= ~points_in_polygon(centers, as_polygon(zone, f"no_fly_zones_xy_m[{i}]"))
-    column_ok = ~(_dilate3((~column_ok).astype(np.float32)) > 0.5)  # no corner-cutting into zones
+    column_ok = ~(dilate3((~column_ok).astype(np.float32)) > 0.5)  # no corner-cutting into zones
     free &= column_ok[None, :, :]
-    return VoxelGrid(_pad(free, False), _pad(hazard, False), x0, y0, config.min_altitude_m, res, config.voxel_z_m)
+    return VoxelGrid(
+        pad_grid(free, False), pad_grid(hazard, False), x0, y0, config.min_altitude_m, res, config.voxel_z_m
+    )
 
 
-def _pad(grid: npt.NDArray[np.bool_], value: bool) -> npt.NDArray[np.bool_]:
+def pad_grid(grid: npt.NDArray[np.bool_], value: bool) -> npt.NDArray[np.bool_]:
+    """``grid`` with a one-voxel border of ``value`` on every side."""
     padded = np.full((grid.shape[0] + 2, grid.shape[1] + 2, grid.shape[2] + 2), value, dtype=bool)
     padded[1:-1, 1:-1, 1:-1] = grid
     return padded
@@ -483,11 +492,11 @@ def plan_astar(
         NoPathError: no path through free space (or ``max_expansions`` exceeded).
         PlanningError: the domain is too large for the voxel size.
     """
-    _check_point("start", start_enu)
-    _check_point("goal", goal_xy)
+    check_finite_point("start", start_enu)
+    check_finite_point("goal", goal_xy)
     goal_z = min(max(goal_altitude_m(dem, goal_xy, config), config.min_altitude_m), config.max_altitude_m)
     goal = (goal_xy[0], goal_xy[1], goal_z)
-    return search_voxels(_build_voxels(dem, start_enu, goal, config), start_enu, goal, config)
+    return search_voxels(build_voxels(dem, start_enu, goal, config), start_enu, goal, config)
 
 
 def search_voxels(

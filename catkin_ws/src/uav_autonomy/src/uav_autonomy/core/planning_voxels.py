@@ -3,7 +3,7 @@
 Pipeline (all vectorised numpy; the map server's octree may hold millions of leaves):
 
 1. :func:`decode_octree` decodes an ``octomap_msgs/Octomap`` binary stream into leaves (corner, size,
-   occupied or free). Same result as :func:`uav_autonomy.core.mapping_octree.decode_binary_octree`,
+   occupied or free). Same result as :func:`uav_autonomy.core.octree_reader.decode_binary_octree`,
    which walks the tree node by node in Python and is far too slow for a whole map.
 2. :func:`occupancy_from_leaves` accumulates the leaves on the planner's coarse lattice (``voxel_xy_m`` x
    ``voxel_z_m``, x/y cells ``[i*res, (i+1)*res)``, z cells centred on ``min_altitude_m + k*voxel_z_m``):
@@ -34,15 +34,15 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from uav_autonomy.core.geometry2d import as_polygon, points_in_polygon
-from uav_autonomy.core.mapping_octree import KEY_OFFSET, TREE_DEPTH, OctreeLeaves
+from uav_autonomy.core.octree_reader import KEY_OFFSET, TREE_DEPTH, OctreeLeaves
 from uav_autonomy.core.planning import (
     ElevationMap,
     PathArray,
     PlannerConfig,
     VoxelGrid,
-    _check_point,
-    _dilate3,
-    _pad,
+    check_finite_point,
+    dilate3,
+    pad_grid,
     search_voxels,
 )
 from uav_autonomy.errors import InvalidInputError, PlanningError
@@ -394,7 +394,7 @@ def grid_from_occupancy(
     free = ~hazard & _airspace_columns(i0, j0, nx, ny, config)[None, :, :]
     if config.unknown_space == "occupied":
         free &= known_free[kpad : kpad + nz]
-    return VoxelGrid(_pad(free, False), _pad(hazard, False), i0 * rxy, j0 * rxy, config.min_altitude_m, rxy, rz)
+    return VoxelGrid(pad_grid(free, False), pad_grid(hazard, False), i0 * rxy, j0 * rxy, config.min_altitude_m, rxy, rz)
 
 
 def _airspace_columns(i0: int, j0: int, nx: int, ny: int, config: PlannerConfig) -> npt.NDArray[np.bool_]:
@@ -408,7 +408,7 @@ def _airspace_columns(i0: int, j0: int, nx: int, ny: int, config: PlannerConfig)
         column_ok &= points_in_polygon(centers, as_polygon(config.geofence_xy_m, "geofence_xy_m"))
     for n, zone in enumerate(config.no_fly_zones_xy_m):
         column_ok &= ~points_in_polygon(centers, as_polygon(zone, f"no_fly_zones_xy_m[{n}]"))
-    return np.asarray(_dilate3((~column_ok).astype(np.float32)) <= 0.5)  # no corner-cutting into zones
+    return np.asarray(dilate3((~column_ok).astype(np.float32)) <= 0.5)  # no corner-cutting into zones
 
 
 def goal_altitude_on_map_m(
@@ -441,8 +441,8 @@ def plan_on_voxel_map(
         NoPathError: no path through free space (or ``max_expansions`` exceeded).
         PlanningError: the domain is too large for the voxel size.
     """
-    _check_point("start", start_enu)
-    _check_point("goal", goal_xy)
+    check_finite_point("start", start_enu)
+    check_finite_point("goal", goal_xy)
     goal = (goal_xy[0], goal_xy[1], goal_altitude_on_map_m(occ, dem, goal_xy, config))
     grid = grid_from_occupancy(occ, start_enu, goal, config)
     return search_voxels(grid, start_enu, goal, config), grid

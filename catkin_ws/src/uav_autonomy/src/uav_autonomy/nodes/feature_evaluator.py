@@ -15,8 +15,9 @@ Publishes:
 Services:
     ``~get_features`` (uav_msgs/GetGridLayers): the last published features.
 Parameters:
-    ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``features`` (see docs/autonomy.md);
-    ``~overrides`` (dict, default {}): keys merged over that section.
+    ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``features`` (docs/autonomy.md);
+    ``~overrides`` (dict, default {}): keys merged over that section; ``~odom_topic``; ``~image_ns``.
+    Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 Evaluates on every new layers message (new observations), on target or weight
 changes, and at least every ``1 / rate_hz`` seconds (ROS time) with the last layers.
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import math
 import threading
-from pathlib import Path
 
 import numpy as np
 import rospy
@@ -37,8 +37,8 @@ from std_msgs.msg import Header
 from uav_autonomy.core.features import ELEVATION, SCORED_FEATURES, FeatureConfig, FeatureEvaluator, MapLayers, Target
 from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.mcdm import validate_weights, weighted_score
-from uav_autonomy.errors import InvalidInputError
-from uav_autonomy.ros.autonomy_conversions import (
+from uav_autonomy.errors import InvalidInputError, UavAutonomyError
+from uav_autonomy.ros.conversions import (
     NumpyGridLayers,
     color_image_msg,
     float_image_msg,
@@ -47,8 +47,9 @@ from uav_autonomy.ros.autonomy_conversions import (
     map_meta_data,
     target_from_points,
 )
-from uav_autonomy.ros.autonomy_params import default_config_path, load_section
-from uav_common.config import ConfigError
+from uav_autonomy.ros.params import FeatureParams, autonomy_section
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
 from uav_msgs.msg import FeatureWeights, GridLayers, SearchTarget
 from uav_msgs.srv import GetGridLayers, GetGridLayersResponse
 
@@ -72,8 +73,9 @@ def map_layers_from_msg(msg: GridLayers) -> MapLayers:
 
 
 class FeatureEvaluatorNode:
-    def __init__(self, config: FeatureConfig, image_ns: str) -> None:
+    def __init__(self, config: FeatureConfig, image_ns: str, odom_topic: str) -> None:
         self.config = config
+        self.odom_topic = odom_topic
         self.core = FeatureEvaluator(config)
         self.image_ns = image_ns.rstrip("/")
         self._lock = threading.Lock()
@@ -97,7 +99,7 @@ class FeatureEvaluatorNode:
             for name in PUBLISHED
         }
         rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
+        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/target", SearchTarget, self.on_target, queue_size=10)
         rospy.Subscriber("/autonomy/weights", FeatureWeights, self.on_weights, queue_size=10)
         rospy.Service("~get_features", GetGridLayers, self.on_get_features)
@@ -190,14 +192,13 @@ class FeatureEvaluatorNode:
 
 
 def main() -> None:
-    rospy.init_node("feature_evaluator")
-    path = Path(rospy.get_param("~config", str(default_config_path())))
-    try:
-        config = load_section(FeatureConfig, path, "features", rospy.get_param("~overrides", None))
-    except ConfigError as err:
-        rospy.logfatal(f"feature_evaluator: {err}")
-        raise SystemExit(1) from err
-    node = FeatureEvaluatorNode(config, rospy.get_param("~image_ns", "/autonomy/feature_images"))
+    run_node("feature_evaluator", _run, errors=(UavAutonomyError,))
+
+
+def _run() -> None:
+    params = node_params(FeatureParams, "feature_evaluator")
+    config = autonomy_section(FeatureConfig, "features", params.config, params.overrides)
+    node = FeatureEvaluatorNode(config, params.image_ns, params.odom_topic)
     node.start()
     rospy.loginfo(f"feature_evaluator: running ({config})")
     rospy.spin()

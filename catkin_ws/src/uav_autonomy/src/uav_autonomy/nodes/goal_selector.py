@@ -17,8 +17,8 @@ Publishes:
 Services:
     ``~set_weights`` (uav_msgs/SetWeights), ``~set_target`` (uav_msgs/SetTarget).
 Parameters:
-    ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``goal_selector``;
-    ``~overrides`` (dict, default {}).
+    ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``goal_selector``;
+    ``~overrides`` (dict, default {}); ``~odom_topic``. Any other private parameter stops the node (exit code 2).
 
 A decision is made on every features message (new observations) and every
 ``1 / reevaluate_rate_hz`` seconds (ROS time); the goal and reason are published each time.
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 import threading
-from pathlib import Path
 
 import numpy as np
 import rospy
@@ -38,8 +37,8 @@ from std_msgs.msg import Header
 
 from uav_autonomy.core.features import ELEVATION, SCORED_FEATURES, FeatureMaps, Target
 from uav_autonomy.core.mcdm import GoalSelector, GoalSelectorConfig
-from uav_autonomy.errors import InvalidInputError
-from uav_autonomy.ros.autonomy_conversions import (
+from uav_autonomy.errors import InvalidInputError, UavAutonomyError
+from uav_autonomy.ros.conversions import (
     NumpyGridLayers,
     goal_msgs,
     grid_layers_from_msg,
@@ -47,15 +46,17 @@ from uav_autonomy.ros.autonomy_conversions import (
     target_from_points,
     weights_msg,
 )
-from uav_autonomy.ros.autonomy_params import default_config_path, load_section
-from uav_common.config import ConfigError
+from uav_autonomy.ros.params import GoalSelectorParams, autonomy_section
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
 from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget, UnreachableGoal
 from uav_msgs.srv import SetTarget, SetTargetResponse, SetWeights, SetWeightsResponse
 
 
 class GoalSelectorNode:
-    def __init__(self, config: GoalSelectorConfig) -> None:
+    def __init__(self, config: GoalSelectorConfig, odom_topic: str) -> None:
         self.config = config
+        self.odom_topic = odom_topic
         self.core = GoalSelector(config)
         self._lock = threading.Lock()
         self._features: FeatureMaps | None = None
@@ -75,7 +76,7 @@ class GoalSelectorNode:
         self._publish_weights()
         self._publish_target("config")
         rospy.Subscriber("/autonomy/features", NumpyGridLayers, self.on_features, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
+        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/target_point", PointStamped, self.on_target_point, queue_size=10)
         rospy.Subscriber("/autonomy/goal_unreachable", UnreachableGoal, self.on_unreachable, queue_size=10)
         rospy.Service("~set_weights", SetWeights, self.on_set_weights)
@@ -192,13 +193,12 @@ class GoalSelectorNode:
 
 
 def main() -> None:
-    rospy.init_node("goal_selector")
-    path = Path(rospy.get_param("~config", str(default_config_path())))
-    try:
-        config = load_section(GoalSelectorConfig, path, "goal_selector", rospy.get_param("~overrides", None))
-    except ConfigError as err:
-        rospy.logfatal(f"goal_selector: {err}")
-        raise SystemExit(1) from err
-    GoalSelectorNode(config).start()
+    run_node("goal_selector", _run, errors=(UavAutonomyError,))
+
+
+def _run() -> None:
+    params = node_params(GoalSelectorParams, "goal_selector")
+    config = autonomy_section(GoalSelectorConfig, "goal_selector", params.config, params.overrides)
+    GoalSelectorNode(config, params.odom_topic).start()
     rospy.loginfo("goal_selector: running")
     rospy.spin()

@@ -17,8 +17,8 @@ Publishes:
     ``/autonomy/goal_unreachable`` (uav_msgs/UnreachableGoal): the goal it found no path to and why, so
     that the goal selector picks another one.
 Parameters:
-    ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``planner``;
-    ``~overrides`` (dict, default {}).
+    ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``planner``;
+    ``~overrides`` (dict, default {}); ``~odom_topic``. Any other private parameter stops the node (exit code 2).
 
 Threads: callbacks only store their message and wake the planning thread, so a slow plan or a large
 map never blocks them. The planning thread plans when the goal moves more than
@@ -33,7 +33,6 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -47,7 +46,7 @@ from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.planning import (
     ElevationMap,
     PlannerConfig,
-    _build_voxels,
+    build_voxels,
     dem_conflict_m,
     path_conflict_m,
     plan,
@@ -60,16 +59,17 @@ from uav_autonomy.core.planning_voxels import (
     occupancy_from_leaves,
     plan_on_voxel_map,
 )
-from uav_autonomy.errors import InvalidInputError, PlanningError
-from uav_autonomy.ros.autonomy_conversions import (
+from uav_autonomy.errors import InvalidInputError, PlanningError, UavAutonomyError
+from uav_autonomy.ros.conversions import (
     NumpyGridLayers,
     OctomapBlob,
     grid_layers_from_msg,
     octomap_from_buffer,
     path_msg,
 )
-from uav_autonomy.ros.autonomy_params import default_config_path, load_section
-from uav_common.config import ConfigError
+from uav_autonomy.ros.params import PlannerParams, autonomy_section
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
 from uav_msgs.msg import GridLayers, UnreachableGoal
 
 PathArray = npt.NDArray[np.float64]
@@ -88,8 +88,9 @@ class _Inputs:
 
 
 class PathPlannerNode:
-    def __init__(self, config: PlannerConfig) -> None:
+    def __init__(self, config: PlannerConfig, odom_topic: str) -> None:
         self.config = config
+        self.odom_topic = odom_topic
         self._cond = threading.Condition()
         self._in = _Inputs()
         # Planning-thread state.
@@ -112,7 +113,7 @@ class PathPlannerNode:
         self.pub_status = rospy.Publisher("~status", String, queue_size=5, latch=True)
         self.pub_unreachable = rospy.Publisher("/autonomy/goal_unreachable", UnreachableGoal, queue_size=10)
         rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(rospy.get_param("~odom_topic", "/uav/ground_truth/odom"), Odometry, self.on_odom, queue_size=1)
+        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
         rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
         if self.uses_octomap:
             rospy.Subscriber("octomap_binary", rospy.AnyMsg, self.on_octomap, queue_size=1, buff_size=2**28)
@@ -260,7 +261,7 @@ class PathPlannerNode:
         if occ is not None:
             grid = grid_from_occupancy(occ, start, goal3, cfg)
         else:
-            grid = _build_voxels(self._dem_or_empty(inputs, goal), start, goal3, cfg)
+            grid = build_voxels(self._dem_or_empty(inputs, goal), start, goal3, cfg)
         return path_conflict_m(rest, grid, self._skip_m())
 
     def _plan(self, inputs: _Inputs, reason: str, *, blocked: bool = False) -> None:
@@ -317,14 +318,13 @@ class PathPlannerNode:
 
 
 def main() -> None:
-    rospy.init_node("path_planner")
-    path = Path(rospy.get_param("~config", str(default_config_path())))
-    try:
-        config = load_section(PlannerConfig, path, "planner", rospy.get_param("~overrides", None))
-    except ConfigError as err:
-        rospy.logfatal(f"path_planner: {err}")
-        raise SystemExit(1) from err
-    node = PathPlannerNode(config)
+    run_node("path_planner", _run, errors=(UavAutonomyError,))
+
+
+def _run() -> None:
+    params = node_params(PlannerParams, "path_planner")
+    config = autonomy_section(PlannerConfig, "planner", params.config, params.overrides)
+    node = PathPlannerNode(config, params.odom_topic)
     node.start()
     rospy.on_shutdown(node.shutdown)
     source = f" over the {config.voxel_source}" if config.algorithm == "astar" else ""

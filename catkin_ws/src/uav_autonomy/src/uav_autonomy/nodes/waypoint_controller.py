@@ -15,8 +15,9 @@ Publishes:
 Services:
     ``~set_state`` (uav_msgs/SetControllerState): IDLE TAKEOFF AUTONOMOUS SCRIPTED MANUAL HOLD RTL LAND.
 Parameters:
-    ``~config`` (str, default ``<repo>/config/autonomy.yaml``), section ``controller``;
+    ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``controller``;
     ``~overrides`` (dict, default {}); ``~connection_url`` (str, optional): wins over both.
+    Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 MAVLink: connects with ``connection_url`` (pymavlink syntax), sysid/compid 1/191,
 heartbeat 1 Hz as an onboard controller, position setpoints from a ROS-time timer
@@ -34,7 +35,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from pathlib import Path
 
 import rospy
 from geometry_msgs.msg import PoseStamped
@@ -46,7 +46,8 @@ from std_msgs.msg import Header
 from uav_autonomy.core.controller import ControllerConfig, ControllerState, ControllerStatus, WaypointController
 from uav_autonomy.core.patterns import expanding_square, lawnmower, waypoint_list
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError, UavAutonomyError
-from uav_autonomy.ros.autonomy_conversions import (
+from uav_autonomy.mavlink.link import MavlinkLink
+from uav_autonomy.ros.conversions import (
     battery_msg,
     controller_state_msg,
     odometry_msg,
@@ -54,9 +55,9 @@ from uav_autonomy.ros.autonomy_conversions import (
     points_from_msgs,
     yaw_from_quaternion,
 )
-from uav_autonomy.ros.autonomy_mavlink import MavlinkLink
-from uav_autonomy.ros.autonomy_params import default_config_path, load_section
-from uav_common.config import ConfigError
+from uav_autonomy.ros.params import ControllerParams, autonomy_section
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
 from uav_msgs.msg import ControllerState as ControllerStateMsg
 from uav_msgs.srv import SetControllerState, SetControllerStateResponse
 
@@ -221,22 +222,17 @@ class WaypointControllerNode:
 
 
 def main() -> None:
-    rospy.init_node("waypoint_controller")
-    path = Path(rospy.get_param("~config", str(default_config_path())))
-    overrides = dict(rospy.get_param("~overrides", None) or {})
-    if rospy.has_param("~connection_url"):
-        overrides["connection_url"] = rospy.get_param("~connection_url")
-    try:
-        config = load_section(ControllerConfig, path, "controller", overrides)
-    except ConfigError as err:
-        rospy.logfatal(f"waypoint_controller: {err}")
-        raise SystemExit(1) from err
+    run_node("waypoint_controller", _run, errors=(UavAutonomyError,))
+
+
+def _run() -> None:
+    params = node_params(ControllerParams, "waypoint_controller")
+    overrides = dict(params.overrides)
+    if params.connection_url:
+        overrides["connection_url"] = params.connection_url
+    config = autonomy_section(ControllerConfig, "controller", params.config, overrides)
     node = WaypointControllerNode(config)
-    try:
-        node.start()
-    except UavAutonomyError as err:
-        rospy.logfatal(f"waypoint_controller: {err}")
-        raise SystemExit(1) from err
+    node.start()
     rospy.on_shutdown(node.shutdown)
     rospy.loginfo(f"waypoint_controller: MAVLink on {config.connection_url}")
     rospy.spin()

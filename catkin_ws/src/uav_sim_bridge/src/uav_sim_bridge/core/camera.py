@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, FloatArray, RigidTransform, rotation_from_rpy
+from uav_sim_bridge.errors import CameraError
 
 __all__ = [
     "CameraConfig",
@@ -63,27 +64,27 @@ class CameraConfig:
     def __post_init__(self) -> None:
         if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
             msg = f"width and height must be in [1, 8192] pixels, got {self.width}x{self.height}"
-            raise ValueError(msg)
+            raise CameraError(msg)
         if self.hfov_deg is not None and (self.fx is not None or self.fy is not None):
             msg = "give either hfov_deg or fx/fy, not both"
-            raise ValueError(msg)
+            raise CameraError(msg)
         if self.hfov_deg is None and (self.fx is None or self.fy is None):
             msg = "give hfov_deg, or both fx and fy"
-            raise ValueError(msg)
+            raise CameraError(msg)
         if self.hfov_deg is not None and not 1.0 <= self.hfov_deg <= 170.0:
             msg = f"hfov_deg must be in [1, 170], got {self.hfov_deg}"
-            raise ValueError(msg)
+            raise CameraError(msg)
         for name in ("fx", "fy"):
             value = getattr(self, name)
             if value is not None and value <= 0:
                 msg = f"{name} must be > 0 pixels, got {value}"
-                raise ValueError(msg)
+                raise CameraError(msg)
         if self.rate_hz <= 0:
             msg = f"rate_hz must be > 0, got {self.rate_hz}"
-            raise ValueError(msg)
+            raise CameraError(msg)
         if not 0 < self.near_m < self.far_m:
             msg = f"need 0 < near_m < far_m, got near_m={self.near_m}, far_m={self.far_m}"
-            raise ValueError(msg)
+            raise CameraError(msg)
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ class CameraModel:
     def __post_init__(self) -> None:
         if self.width < 1 or self.height < 1 or self.fx <= 0 or self.fy <= 0:
             msg = f"camera {self.name!r}: invalid intrinsics {self.width}x{self.height} fx={self.fx} fy={self.fy}"
-            raise ValueError(msg)
+            raise CameraError(msg)
 
     @staticmethod
     def from_config(name: str, cfg: CameraConfig) -> CameraModel:
@@ -255,7 +256,7 @@ def depth_to_points(depth_m: npt.ArrayLike, k: npt.ArrayLike) -> npt.NDArray[np.
     depth = np.asarray(depth_m, dtype=np.float32)
     if depth.ndim != 2:
         msg = f"depth_m must be a 2-D image, got shape {depth.shape}"
-        raise ValueError(msg)
+        raise CameraError(msg)
     kk = np.asarray(k, dtype=np.float64)
     fx, fy, cx, cy = kk[0, 0], kk[1, 1], kk[0, 2], kk[1, 2]
     h, w = depth.shape
@@ -281,7 +282,7 @@ def look_at(eye_m: npt.ArrayLike, target_m: npt.ArrayLike, up: npt.ArrayLike = (
     norm = float(np.linalg.norm(fwd))
     if norm < 1e-9:
         msg = "look_at: eye and target coincide"
-        raise ValueError(msg)
+        raise CameraError(msg)
     z_axis = fwd / norm
     up_vec = np.asarray(up, dtype=np.float64)
     if abs(float(np.dot(z_axis, up_vec / np.linalg.norm(up_vec)))) > 0.999:

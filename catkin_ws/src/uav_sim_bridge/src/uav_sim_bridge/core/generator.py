@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -33,6 +32,18 @@ MAX_INSTANCE_ID = 65534  # instance images are 16UC1 and 0 is the sky
 ROAD_LIFT_M = 0.12  # road surface above the (conformed) terrain
 _ROAD_SINK_M = 0.05  # terrain under a road is lowered by this much below the smooth road bed
 _RASTER_RES_M = 1.0
+
+
+@dataclass(frozen=True)
+class WorldInputs:
+    """What a world config names on disk, read by the shell (``shell.world_store.load_world_inputs``).
+
+    ``heightmap``: the terrain image as heights in [0, 1] (:func:`~uav_sim_bridge.core.terrain.normalized_heightmap`);
+    ``meshes``: per ``custom_objects`` entry, its triangles as ``(vertices (N, 3) m, faces (M, 3))``.
+    """
+
+    heightmap: FloatArray | None = None
+    meshes: tuple[tuple[FloatArray, npt.NDArray[np.int64]], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -504,24 +515,19 @@ def _add_trees(
 
 
 def _add_custom_objects(
-    acc: MeshAccumulator, ids: _Ids, customs: tuple[CustomObjectConfig, ...], terrain: Heightfield
+    acc: MeshAccumulator,
+    ids: _Ids,
+    customs: tuple[CustomObjectConfig, ...],
+    meshes: tuple[tuple[FloatArray, npt.NDArray[np.int64]], ...],
+    terrain: Heightfield,
 ) -> None:
-    if not customs:
-        return
-    import trimesh  # noqa: PLC0415  (heavy import, only when user meshes are configured)
-
-    for k, c in enumerate(customs):
+    if len(meshes) != len(customs):
+        msg = f"{len(customs)} custom_objects but {len(meshes)} meshes loaded (load_world_inputs reads them)"
+        raise WorldFileError(msg)
+    for k, (c, (raw_verts, raw_faces)) in enumerate(zip(customs, meshes, strict=True)):
         path = Path(c.mesh)
-        if not path.is_file():
-            msg = f"custom_objects[{k}].mesh: file {path} not found"
-            raise WorldFileError(msg)
-        try:
-            loaded: Any = trimesh.load(str(path), force="mesh")
-        except Exception as err:  # trimesh raises many types for bad files
-            msg = f"custom_objects[{k}].mesh: cannot read {path}: {err}"
-            raise WorldFileError(msg) from err
-        verts = np.asarray(loaded.vertices, dtype=np.float64) * c.scale
-        faces = np.asarray(loaded.faces, dtype=np.int64)
+        verts = np.asarray(raw_verts, dtype=np.float64) * c.scale
+        faces = np.asarray(raw_faces, dtype=np.int64)
         if len(faces) == 0:
             msg = f"custom_objects[{k}].mesh: {path} has no triangles"
             raise WorldFileError(msg)
@@ -582,16 +588,17 @@ def _terrain_colors(
     return np.asarray(np.clip(col, 0.0, 1.0), dtype=np.float64)
 
 
-def build_world_parts(cfg: WorldConfig) -> WorldParts:
-    """Generate the world (see module docstring).
+def build_world_parts(cfg: WorldConfig, inputs: WorldInputs | None = None) -> WorldParts:
+    """Generate the world (see module docstring) from its config and the files it names (``inputs``).
 
     Raises:
         WorldError: too many objects for 16-bit instance ids.
-        WorldFileError: a configured heightmap image or mesh cannot be read.
+        WorldFileError: a configured heightmap image or mesh was not given, or a mesh is unusable.
     """
+    inputs = inputs or WorldInputs()
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(10)]
     rng_terrain, rng_sites, rng_roads, rng_bld, rng_veh, rng_ppl, rng_trees, rng_col, rng_mesh, _ = streams
-    terrain = generate_terrain(cfg.terrain, rng_terrain)
+    terrain = generate_terrain(cfg.terrain, rng_terrain, inputs.heightmap)
     size = cfg.terrain.size_m
     villages = pick_village_sites(
         terrain,
@@ -629,7 +636,7 @@ def build_world_parts(cfg: WorldConfig) -> WorldParts:
     _add_trees(acc, ids, cfg, tree_pos, rng_trees)
     _add_dynamic(acc, ids, ObjectClass.PERSON, people, size=(0.46, 0.46, 1.72), rng=rng_mesh)
     _add_dynamic(acc, ids, ObjectClass.VEHICLE, vehicles, size=(4.3, 1.8, 1.72), rng=rng_mesh)
-    _add_custom_objects(acc, ids, cfg.custom_objects, terrain)
+    _add_custom_objects(acc, ids, cfg.custom_objects, inputs.meshes, terrain)
 
     thr = float(np.quantile(forest_density, 1.0 - cfg.forest.coverage)) if cfg.forest.coverage > 0 else np.inf
     colors = _terrain_colors(terrain, forest_density, thr, roads, rng_col)

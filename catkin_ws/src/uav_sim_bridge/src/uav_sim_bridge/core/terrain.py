@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -197,37 +196,46 @@ def _valley_terrain(cfg: TerrainConfig, gx: FloatArray, gy: FloatArray, rng: np.
     return np.asarray(hills + rough + grade, dtype=np.float64)
 
 
-def _heightmap_terrain(cfg: TerrainConfig, rows: int, cols: int) -> FloatArray:
-    path = cfg.heightmap_image
-    assert path is not None
-    if not Path(path).is_file():
-        msg = f"heightmap image {path} not found"
-        raise WorldFileError(msg)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        msg = f"heightmap image {path} could not be decoded (use an 8- or 16-bit PNG or TIFF)"
-        raise WorldFileError(msg)
+def normalized_heightmap(img: npt.NDArray[np.generic]) -> FloatArray:
+    """A decoded heightmap image (8- or 16-bit, grey or colour) as heights in [0, 1], row 0 the north edge.
+
+    Raises:
+        WorldFileError: not a 2D grey or 3D colour image.
+    """
     if img.ndim == 3:
         img = img[..., :3].mean(axis=2)
+    if img.ndim != 2 or img.size == 0:
+        msg = f"heightmap image has shape {img.shape}; expected a 2D grey or colour image"
+        raise WorldFileError(msg)
     full = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(img.dtype, 1.0)
-    norm = np.clip(img.astype(np.float64) / full, 0.0, 1.0)
+    return np.clip(img.astype(np.float64) / full, 0.0, 1.0)
+
+
+def _heightmap_terrain(cfg: TerrainConfig, norm: FloatArray, rows: int, cols: int) -> FloatArray:
     # Image row 0 is the north edge; grid row 0 is the south edge.
     grid = cv2.resize(norm[::-1].copy(), (cols, rows), interpolation=cv2.INTER_LINEAR)
     return np.asarray(cfg.heightmap_min_m + grid * (cfg.heightmap_max_m - cfg.heightmap_min_m), dtype=np.float64)
 
 
-def generate_terrain(cfg: TerrainConfig, rng: np.random.Generator) -> Heightfield:
+def generate_terrain(cfg: TerrainConfig, rng: np.random.Generator, heightmap: FloatArray | None = None) -> Heightfield:
     """Build the heightfield with a flat home pad, shifted so that ``height_at(0, 0) == 0``.
 
+    Args:
+        heightmap: the configured heightmap image, :func:`normalized_heightmap` (loaded by the
+            shell, ``uav_sim_bridge.shell.world_store.load_world_inputs``).
+
     Raises:
-        WorldFileError: the configured heightmap image is missing or unreadable.
+        WorldFileError: a heightmap image is configured but was not given.
     """
+    if cfg.heightmap_image is not None and heightmap is None:
+        msg = f"terrain.heightmap_image {cfg.heightmap_image} was not loaded (load_world_inputs reads it)"
+        raise WorldFileError(msg)
     n = round(cfg.size_m / cfg.resolution_m) + 1
     origin = (cfg.center_m[0] - cfg.size_m / 2.0, cfg.center_m[1] - cfg.size_m / 2.0)
     x = origin[0] + np.arange(n) * cfg.resolution_m
     y = origin[1] + np.arange(n) * cfg.resolution_m
     gx, gy = np.meshgrid(x, y, indexing="xy")
-    heights = _heightmap_terrain(cfg, n, n) if cfg.heightmap_image is not None else _valley_terrain(cfg, gx, gy, rng)
+    heights = _heightmap_terrain(cfg, heightmap, n, n) if heightmap is not None else _valley_terrain(cfg, gx, gy, rng)
     field = Heightfield(origin, cfg.resolution_m, heights)
     if cfg.home_pad_radius_m > 0:
         r = np.hypot(gx, gy)

@@ -22,9 +22,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from uav_common.voxel_keys import pack_keys, unpack_keys
 from uav_sim_bridge.core.terrain import Heightfield
 
-__all__ = ["object_surface_voxels", "pack_keys", "terrain_surface_voxels", "union_keys", "unpack_keys", "voxel_centres"]
+__all__ = ["object_surface_voxels", "terrain_surface_voxels", "union_keys", "voxel_centres"]
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -33,25 +34,6 @@ FloatArray = npt.NDArray[np.float64]
 def voxel_centres(keys: IntArray, resolution_m: float) -> FloatArray:
     """``(N, 3)`` centres of voxel keys."""
     return (np.asarray(keys, dtype=np.float64) + 0.5) * resolution_m
-
-
-_OFF = 1 << 20  # keys are packed into one int64 as three 21-bit fields: |k| < 2^20 per axis
-
-
-def pack_keys(keys: IntArray) -> IntArray:
-    """``(N, 3)`` keys -> ``(N,)`` int64 that sorts like ``(x, y, z)`` lexicographically."""
-    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-    if len(k) and (k.min() <= -_OFF or k.max() >= _OFF):
-        msg = "voxel keys out of range (|key| must be < 2^20); use a coarser resolution"
-        raise ValueError(msg)
-    return np.asarray(((k[:, 0] + _OFF) << 42) | ((k[:, 1] + _OFF) << 21) | (k[:, 2] + _OFF), dtype=np.int64)
-
-
-def unpack_keys(packed: IntArray) -> IntArray:
-    """Inverse of :func:`pack_keys`."""
-    p = np.asarray(packed, dtype=np.int64)
-    mask = (1 << 21) - 1
-    return np.asarray(np.stack([(p >> 42) - _OFF, ((p >> 21) & mask) - _OFF, (p & mask) - _OFF], axis=1), np.int64)
 
 
 def union_keys(*parts: IntArray) -> IntArray:

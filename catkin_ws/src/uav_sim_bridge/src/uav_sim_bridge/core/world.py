@@ -1,13 +1,12 @@
-"""The simulated world: generation, identity (hash), queries, save/load and export.
+"""The simulated world: generation, identity (hash) and queries (pure; its files are ``shell.world_store``).
 
 Typical use::
 
     cfg = load_world_config(Path("config/worlds/default.yaml"))
-    world = load_or_generate(cfg, cache_dir)          # or generate_world(cfg)
+    world = generate_world(cfg)                        # shell.world_store; or load_or_generate(cfg, cache_dir)
     world.height_at(x, y)                              # terrain, vectorised
     world.surface_height_at(x, y)                      # highest surface incl. roads/roofs
     keys = world.surface_voxels(0.5)                   # (N, 3) int64 voxel keys
-    world.export_mesh(Path("world.ply")); world.export_objects_json(Path("objects.json"))
 
 The world frame *is* ``map`` (x East, y North, z Up, metres); the terrain is 0 at
 home (0, 0), flat around it, and no object comes within ``home_clear_radius_m``.
@@ -17,19 +16,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from uav_common.config import from_mapping, to_mapping
-from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID, build_world_parts
+from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID, WorldInputs, build_world_parts
 from uav_sim_bridge.core.mesh import LOD_FAR, MeshArrays
 from uav_sim_bridge.core.objects import ObjectPose, WorldObject
 from uav_sim_bridge.core.roads import RoadNetwork
@@ -37,26 +31,14 @@ from uav_sim_bridge.core.spatial import TriangleGrid
 from uav_sim_bridge.core.terrain import Heightfield
 from uav_sim_bridge.core.voxels import object_surface_voxels, terrain_surface_voxels, union_keys
 from uav_sim_bridge.core.world_config import ObjectClass, WorldConfig
-from uav_sim_bridge.errors import ConfigError, WorldFileError
 
-__all__ = [
-    "GENERATOR_VERSION",
-    "ObjectClass",
-    "ObjectPose",
-    "World",
-    "WorldObject",
-    "cache_slot",
-    "config_key",
-    "generate_world",
-    "load_or_generate",
-]
+__all__ = ["GENERATOR_VERSION", "ObjectClass", "ObjectPose", "World", "WorldObject", "build_world"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 # Bump when the generator's output changes for the same config (invalidates caches).
 GENERATOR_VERSION = 3  # 3: worlds without forest have finite terrain colours
-_FILES = ("world.npz", "objects.json", "meta.json")
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,136 +192,10 @@ class World:
         out: IntArray = self._cache[key]
         return out
 
-    # ------------------------------------------------------------------ persistence
-    def save(self, directory: Path) -> None:
-        """Write the world to ``directory`` (created; existing files are replaced atomically)."""
-        directory = Path(directory)
-        directory.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
-        try:
-            lines = self.roads.polylines
-            np.savez(
-                tmp / "world.npz",
-                heights_m=self.terrain.heights_m,
-                terrain_grid=np.array([*self.terrain.origin_m, self.terrain.resolution_m]),
-                vertices_m=self.mesh.vertices_m,
-                normals=self.mesh.normals,
-                colors=self.mesh.colors,
-                vertex_instance=self.mesh.vertex_instance,
-                faces=self.mesh.faces,
-                face_lod=self.mesh.face_lod,
-                road_points=np.concatenate(lines) if lines else np.zeros((0, 2)),
-                road_lengths=np.array([len(p) for p in lines], dtype=np.int64),
-                villages_m=self.roads.villages_m,
-                road_width_m=np.array(self.roads.width_m),
-            )
-            (tmp / "objects.json").write_text(json.dumps([o.to_json() for o in self.objects]))
-            meta = {
-                "generator_version": GENERATOR_VERSION,
-                "world_hash": self.hash,
-                "config_key": config_key(self.config),
-                "config": to_mapping(self.config),
-            }
-            (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-            if directory.exists():
-                shutil.rmtree(directory)
-            os.replace(tmp, directory)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
 
-    @staticmethod
-    def load(directory: Path) -> World:
-        """Read a world written by :meth:`save` and check its hash.
-
-        Raises:
-            WorldFileError: missing or corrupt files, or a hash mismatch.
-        """
-        directory = Path(directory)
-        missing = [f for f in _FILES if not (directory / f).is_file()]
-        if missing:
-            msg = f"{directory}: not a saved world (missing {', '.join(missing)})"
-            raise WorldFileError(msg)
-        try:
-            meta = json.loads((directory / "meta.json").read_text())
-            objects = tuple(WorldObject.from_json(o) for o in json.loads((directory / "objects.json").read_text()))
-            cfg = from_mapping(WorldConfig, meta["config"], source=str(directory / "meta.json"), prefix="config")
-            with np.load(directory / "world.npz") as z:
-                grid = z["terrain_grid"]
-                terrain = Heightfield((float(grid[0]), float(grid[1])), float(grid[2]), z["heights_m"])
-                mesh = MeshArrays(
-                    z["vertices_m"], z["normals"], z["colors"], z["vertex_instance"], z["faces"], z["face_lod"]
-                )
-                split = np.cumsum(z["road_lengths"])[:-1]
-                lines = tuple(np.split(z["road_points"], split)) if len(z["road_lengths"]) else ()
-                roads = RoadNetwork(lines, z["villages_m"], float(z["road_width_m"]))
-        except (OSError, ValueError, KeyError, TypeError, json.JSONDecodeError, ConfigError) as err:
-            msg = f"{directory}: corrupt saved world: {err}"
-            raise WorldFileError(msg) from err
-        if meta.get("generator_version") != GENERATOR_VERSION:
-            msg = f"{directory}: saved by generator v{meta.get('generator_version')}, this is v{GENERATOR_VERSION}"
-            raise WorldFileError(msg)
-        world = World(cfg, terrain, mesh, objects, roads)
-        if world.hash != meta.get("world_hash"):
-            msg = f"{directory}: world hash mismatch (files modified or truncated)"
-            raise WorldFileError(msg)
-        return world
-
-    # ------------------------------------------------------------------ export
-    def export_mesh(self, path: Path, *, include_far_lod: bool = False) -> None:
-        """Write the full-detail mesh with vertex colors; the format follows the suffix (.ply, .glb, .obj, .stl)."""
-        from uav_sim_bridge.core.world_io import export_mesh  # noqa: PLC0415 (trimesh is heavy)
-
-        export_mesh(self, Path(path), include_far_lod=include_far_lod)
-
-    def export_objects_json(self, path: Path) -> None:
-        """Write the object list (instance id, class, name, pose, size) and the world identity as JSON."""
-        from uav_sim_bridge.core.world_io import export_objects_json  # noqa: PLC0415
-
-        export_objects_json(self, Path(path))
-
-
-def generate_world(cfg: WorldConfig) -> World:
-    """Generate the world of ``cfg`` (deterministic: the same config gives the same :attr:`World.hash`)."""
-    parts = build_world_parts(cfg)
+def build_world(cfg: WorldConfig, inputs: WorldInputs | None = None) -> World:
+    """Generate the world of ``cfg`` from the files it names, already read (``inputs``; none for a fully
+    procedural world). Deterministic: the same config and inputs give the same :attr:`World.hash`.
+    ``uav_sim_bridge.shell.world_store.generate_world`` reads the inputs and calls this."""
+    parts = build_world_parts(cfg, inputs)
     return World(cfg, parts.terrain, parts.mesh, parts.objects, parts.roads)
-
-
-def _file_digest(path: Path) -> str:
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError as err:
-        msg = f"cannot read {path}: {err.strerror}"
-        raise WorldFileError(msg) from err
-
-
-def config_key(cfg: WorldConfig) -> str:
-    """Digest of a config and the contents of the files it names (the cache key)."""
-    data = to_mapping(cfg)
-    files = []
-    if cfg.terrain.heightmap_image is not None:
-        files.append(_file_digest(cfg.terrain.heightmap_image))
-    files.extend(_file_digest(c.mesh) for c in cfg.custom_objects)
-    blob = json.dumps({"v": GENERATOR_VERSION, "config": data, "files": files}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def cache_slot(cfg: WorldConfig, cache_dir: Path) -> Path:
-    """The folder under ``cache_dir`` where :func:`load_or_generate` keeps the world of ``cfg``."""
-    return Path(cache_dir) / f"{cfg.name}-{config_key(cfg)[:16]}"
-
-
-def load_or_generate(cfg: WorldConfig, cache_dir: Path) -> World:
-    """Load the cached world of ``cfg`` from ``cache_dir``, or generate and cache it.
-
-    A corrupt or stale cache entry is regenerated, never trusted.
-    """
-    slot = cache_slot(cfg, cache_dir)
-    if slot.is_dir():
-        try:
-            return World.load(slot)
-        except WorldFileError:
-            pass  # regenerate below
-    world = generate_world(cfg)
-    world.save(slot)
-    return world

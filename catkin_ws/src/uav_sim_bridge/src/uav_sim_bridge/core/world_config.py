@@ -11,7 +11,8 @@ import enum
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from uav_common.config import load_config
+from uav_common.config import config_errors_as, load_config
+from uav_sim_bridge.errors import SimBridgeConfigError
 
 __all__ = [
     "BuildingsConfig",
@@ -236,9 +237,10 @@ def load_world_config(path: Path) -> WorldConfig:
     """Load a world YAML; relative file paths in it are made relative to its folder.
 
     Raises:
-        ConfigError: missing file, bad YAML, unknown key or invalid value.
+        SimBridgeConfigError: missing file, bad YAML, unknown key or invalid value.
     """
-    cfg = load_config(WorldConfig, path)
+    with config_errors_as(SimBridgeConfigError):
+        cfg = load_config(WorldConfig, path)
     base = path.resolve().parent
     terrain = cfg.terrain
     if terrain.heightmap_image is not None and not terrain.heightmap_image.is_absolute():

@@ -22,17 +22,18 @@ Services:
     ~set_object_pose (uav_msgs/SetObjectPose): move a person or vehicle.
 
 Parameters:
-    ~config_file (str, default <repo>/config/sim_bridge.yaml): node configuration.
+    ~config_file (str, default: the project's config/sim_bridge.yaml): node configuration.
     ~overrides (dict, default {}): deep-merged over the file (e.g. from a scenario).
     ~world, ~world_cache_dir, ~sim_host, ~sim_port, ~local_port, ~lockstep_role (str/int, "" = from file).
     ~cameras (str, "" = all): comma-separated subset of the configured cameras to run.
     ~settle (bool, default false), ~settle_root_pid (int, default: our parent, i.e. roslaunch),
     ~settle_timeout_s (float, 10): lockstep master only: before publishing a state's /clock, before
     publishing the rest of it and before granting the next step, wait until every process of the
-    run is idle (uav_sim_bridge.settle), so the run does not depend on scheduling (determinism).
+    run is idle (uav_sim_bridge.shell.settle), so the run does not depend on scheduling (determinism).
     ~settle_wait_nodes (list of node names, default []): with ~settle, the first grant waits until
     these nodes are registered and idle (their timers then all start at simulation time 0).
     Sets ~world_hash, ~world_name and ~world_dir (cache folder with objects.json and world.ply).
+    Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 Threading: every GL call and all publishing of sensor data happen in the main loop's
 thread; the service callback only queues a request and waits for the loop to apply it.
@@ -43,10 +44,9 @@ from __future__ import annotations
 import math
 import os
 import queue
-import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -60,25 +60,30 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
-from uav_common.config import ConfigError, from_mapping, load_yaml_mapping
+from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.geo import GeoPoint
-from uav_common.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
+from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
+from uav_common.ros.arrays import depth_cloud_msg, image_msg
+from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import REPO_ROOT, SimBridgeConfig, merge_overrides
+from uav_sim_bridge.config import SimBridgeConfig
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
-from uav_sim_bridge.core.world import World, cache_slot, load_or_generate
+from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import load_world_config
 from uav_sim_bridge.engine import BridgeEngine, CameraOutput, StepOutput
-from uav_sim_bridge.errors import SimBridgeError
+from uav_sim_bridge.errors import SimBridgeConfigError, SimBridgeError
 from uav_sim_bridge.render import Renderer
 from uav_sim_bridge.ros import conversions as conv
-from uav_sim_bridge.ros.pointcloud2 import depth_image_to_pointcloud2
-from uav_sim_bridge.settle import Settle
-from uav_sim_bridge.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
+from uav_sim_bridge.shell.settle import Settle
+from uav_sim_bridge.shell.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
+from uav_sim_bridge.shell.world_io import export_mesh, export_objects_json
+from uav_sim_bridge.shell.world_store import cache_slot, load_or_generate
 
 __all__ = ["SimBridgeNode", "load_node_config", "main"]
 
@@ -93,39 +98,66 @@ _SIMPLE_PARAMS = {
 }
 
 
-def load_node_config() -> SimBridgeConfig:
-    """File + ``~overrides`` + convenience parameters -> :class:`SimBridgeConfig`.
+@dataclass(frozen=True)
+class BridgeParams:
+    """The node's private parameters (empty strings keep the configuration file's value)."""
+
+    config_file: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    world: str = ""
+    world_cache_dir: str = ""
+    cameras: str = ""
+    sim_host: str = ""
+    sim_port: int | str = ""
+    local_port: int | str = ""
+    lockstep_role: str = ""
+    settle: bool = False
+    settle_root_pid: int = 0
+    settle_timeout_s: float = 10.0
+    settle_wait_nodes: tuple[str, ...] = ()
+    # Written by the node itself (read by the scorer and the depth evaluator); present on a respawn.
+    world_hash: str = ""
+    world_name: str = ""
+    world_dir: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("sim_port", "local_port"):
+            value = getattr(self, name)
+            if isinstance(value, str) and value != "":
+                msg = f"~{name} must be a port number or empty (the file's), got {value!r}"
+                raise ValueError(msg)
+        if not self.settle_timeout_s > 0.0:
+            msg = f"~settle_timeout_s must be > 0, got {self.settle_timeout_s}"
+            raise ValueError(msg)
+
+
+def load_node_config(params: BridgeParams) -> SimBridgeConfig:
+    """File + ``~overrides`` + the convenience parameters -> :class:`SimBridgeConfig`.
 
     Raises:
-        ConfigError: missing file, bad YAML, unknown key, bad value.
+        SimBridgeConfigError: missing file, bad YAML, unknown key, bad value.
     """
-    path = Path(str(rospy.get_param("~config_file", str(REPO_ROOT / "config" / "sim_bridge.yaml"))))
-    data: dict[str, Any] = load_yaml_mapping(path)
-    overrides = rospy.get_param("~overrides", {})
-    if not isinstance(overrides, dict):
-        msg = f"~overrides must be a mapping, got {type(overrides).__name__}"
-        raise ConfigError(msg)
-    data = merge_overrides(data, overrides)
-    for name, keys in _SIMPLE_PARAMS.items():
-        value = rospy.get_param("~" + name, "")
-        if value in ("", None):
-            continue
-        if keys in {("sim_link", "port"), ("sim_link", "local_port")}:
-            value = int(value)
-        data = merge_overrides(data, _nested(keys, value))
-    wanted = str(rospy.get_param("~cameras", "")).strip()
-    if wanted:
-        names = [n.strip() for n in wanted.split(",") if n.strip()]
-        cams = data.get("cameras", {})
-        missing = [n for n in names if n not in cams]
-        if missing:
-            msg = f"~cameras names unknown camera(s) {missing}; configured: {sorted(cams)}"
-            raise ConfigError(msg)
-        data["cameras"] = {n: cams[n] for n in names}
-        det = dict(data.get("detections", {}))
-        det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
-        data["detections"] = det
-    return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
+    with config_errors_as(SimBridgeConfigError):
+        path = Path(params.config_file).expanduser() if params.config_file else config_file("sim_bridge.yaml")
+        data: dict[str, Any] = deep_merge(load_yaml_mapping(path), params.overrides)
+        for name, keys in _SIMPLE_PARAMS.items():
+            value = getattr(params, name)
+            if value in ("", None):
+                continue
+            data = deep_merge(data, _nested(keys, value))
+        wanted = params.cameras.strip()
+        if wanted:
+            names = [n.strip() for n in wanted.split(",") if n.strip()]
+            cams = data.get("cameras", {})
+            missing = [n for n in names if n not in cams]
+            if missing:
+                msg = f"~cameras names unknown camera(s) {missing}; configured: {sorted(cams)}"
+                raise SimBridgeConfigError(msg)
+            data["cameras"] = {n: cams[n] for n in names}
+            det = dict(data.get("detections", {}))
+            det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
+            data["detections"] = det
+        return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
 
 
 def _nested(keys: tuple[str, ...], value: Any) -> dict[str, Any]:
@@ -159,7 +191,7 @@ class _MoveRequest:
 class SimBridgeNode:
     """The node (see module docstring). Create and spin it in the same thread."""
 
-    def __init__(self, cfg: SimBridgeConfig) -> None:
+    def __init__(self, cfg: SimBridgeConfig, params: BridgeParams) -> None:
         self.cfg = cfg
         t0 = time.monotonic()
         world_cfg = load_world_config(cfg.world_yaml())
@@ -212,14 +244,14 @@ class SimBridgeNode:
         self.frames = 0
         self._packers: dict[str, DepthImagePacker] = {}  # per camera: reused cloud buffers
         self._last_bad = 0
-        # Determinism (issue 9, added by the scenario engineer): optional settle waits, lockstep master only.
+        # Determinism: optional settle waits, lockstep master only.
         self._settle: Settle | None = None
         self._settle_nodes: list[str] = []
         self._settle_started = False
-        if bool(rospy.get_param("~settle", False)) and cfg.lockstep.role == LockstepRole.MASTER:
-            root = int(rospy.get_param("~settle_root_pid", 0)) or os.getppid()
-            self._settle = Settle(root, timeout_s=float(rospy.get_param("~settle_timeout_s", 10.0)))
-            self._settle_nodes = [str(n) for n in rospy.get_param("~settle_wait_nodes", [])]
+        if params.settle and cfg.lockstep.role == LockstepRole.MASTER:
+            root = params.settle_root_pid or os.getppid()
+            self._settle = Settle(root, timeout_s=params.settle_timeout_s)
+            self._settle_nodes = list(params.settle_wait_nodes)
             rospy.loginfo("lockstep: settling (waiting for every process under pid %d to go idle) at each step", root)
 
     # ------------------------------------------------------------------ setup
@@ -261,10 +293,10 @@ class SimBridgeNode:
         ply = self.world_dir / "world.ply"
         try:
             if not ply.is_file():
-                self.world.export_mesh(ply)
+                export_mesh(self.world, ply)
             objects = self.world_dir / "objects.json"
             if not objects.is_file():
-                self.world.export_objects_json(objects)
+                export_objects_json(self.world, objects)
         except SimBridgeError as err:
             rospy.logwarn("cannot export the world mesh for rviz: %s", err)
             return
@@ -365,7 +397,7 @@ class SimBridgeNode:
         lk = self.cfg.lockstep
         if self._awaiting_ack:
             if self._settle is not None:
-                # Determinism (issue 9): a late ACK means a busy SITL, not a lost grant; granting again
+                # Determinism: a late ACK means a busy SITL, not a lost grant; granting again
                 # would run extra steps. Wait (and say so) instead.
                 if now - self._grant_sent_at > 10.0 * lk.grant_timeout_s:
                     rospy.logwarn_throttle(10.0, "lockstep: still waiting for the SITL's COMMAND_ACK for SIM_STEP")
@@ -391,7 +423,7 @@ class SimBridgeNode:
         self._send_grant(now)
 
     def _settle_first_grant(self) -> None:
-        """Determinism (issue 9): before simulation time starts, every listed node is up and idle."""
+        """Determinism: before simulation time starts, every listed node is up and idle."""
         assert self._settle is not None
         master = rosgraph.Master(rospy.get_name())
         deadline = time.monotonic() + 120.0
@@ -443,7 +475,7 @@ class SimBridgeNode:
         return pending
 
     def _settle_wait(self, what: str) -> None:
-        """Determinism (issue 9): wait until the run's processes are idle; a timeout only warns."""
+        """Determinism: wait until the run's processes are idle; a timeout only warns."""
         if self._settle is None or self._lockstep_denied:
             return
         if not self._settle_started:
@@ -532,22 +564,22 @@ class SimBridgeNode:
             return every or p.get_num_connections() > 0
 
         if on(pubs.color):
-            pubs.color.publish(conv.numpy_to_image(frame.color_rgb, "rgb8", hdr))
+            pubs.color.publish(image_msg(frame.color_rgb, "rgb8", hdr))
         if on(pubs.color_info):
             pubs.color_info.publish(info)
         if on(pubs.depth):
-            pubs.depth.publish(conv.numpy_to_image(out.depth_m, "32FC1", hdr))
+            pubs.depth.publish(image_msg(out.depth_m, "32FC1", hdr))
         if on(pubs.depth_info):
             pubs.depth_info.publish(info)
         if on(pubs.instance):
-            pubs.instance.publish(conv.numpy_to_image(frame.instance_id, "16UC1", hdr))
+            pubs.instance.publish(image_msg(frame.instance_id, "16UC1", hdr))
         if self.cfg.publish.class_image and on(pubs.klass):
             rgb = visualize.class_image(frame.instance_id, self.world.instance_class)
-            pubs.klass.publish(conv.numpy_to_image(rgb, "rgb8", hdr))
+            pubs.klass.publish(image_msg(rgb, "rgb8", hdr))
         if self.cfg.publish.points and on(pubs.points):
             stride = self.cfg.publish.points_stride
             packer = self._packers.setdefault(out.camera.name, DepthImagePacker())
-            cloud = depth_image_to_pointcloud2(packer, hdr, out.depth_m, frame.color_rgb, out.camera.k, stride=stride)
+            cloud = depth_cloud_msg(packer, hdr, out.depth_m, frame.color_rgb, out.camera.k, stride=stride)
             pubs.points.publish(cloud)
         self.frames += 1
 
@@ -598,13 +630,12 @@ class SimBridgeNode:
 
 
 def main() -> None:
-    rospy.init_node("sim_bridge")
-    try:
-        cfg = load_node_config()
-        node = SimBridgeNode(cfg)
-    except (ConfigError, SimBridgeError) as err:
-        rospy.logfatal("sim_bridge cannot start: %s", err)
-        sys.exit(1)
+    run_node("sim_bridge", _run, errors=(SimBridgeError,))
+
+
+def _run() -> None:
+    params = node_params(BridgeParams, "sim_bridge")
+    node = SimBridgeNode(load_node_config(params), params)
     try:
         node.spin()
     finally:

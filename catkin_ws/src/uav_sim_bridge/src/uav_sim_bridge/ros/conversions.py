@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
 import rospy
 from geometry_msgs.msg import Point, Quaternion, TransformStamped, Vector3
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from uav_common.frames import wxyz_to_ros_xyzw
@@ -26,21 +22,12 @@ __all__ = [
     "collision_msg",
     "detection_array",
     "header",
-    "image_to_numpy",
-    "numpy_to_image",
     "odometry",
     "quaternion",
     "sim_state",
     "stamp",
     "transform_stamped",
 ]
-
-_ENCODINGS: dict[str, tuple[str, int]] = {
-    "rgb8": ("u1", 3),
-    "32FC1": ("<f4", 1),
-    "16UC1": ("<u2", 1),
-    "mono8": ("u1", 1),
-}
 
 
 def stamp(sim_time_s: float) -> rospy.Time:
@@ -86,41 +73,6 @@ def odometry(state: VehicleState, frame_id: str, child_frame_id: str) -> Odometr
     msg.twist.twist.linear = Vector3(x=vx, y=vy, z=vz)
     msg.twist.twist.angular = Vector3(x=wx, y=wy, z=wz)
     return msg
-
-
-def numpy_to_image(array: npt.NDArray[Any], encoding: str, hdr: Header) -> Image:
-    """An ``(H, W[, C])`` array as ``sensor_msgs/Image`` (little endian)."""
-    if encoding not in _ENCODINGS:
-        msg = f"unsupported encoding {encoding!r}"
-        raise ValueError(msg)
-    dtype, channels = _ENCODINGS[encoding]
-    arr = np.ascontiguousarray(array, dtype=np.dtype(dtype))
-    h, w = arr.shape[:2]
-    if (arr.ndim == 3 and arr.shape[2] != channels) or (arr.ndim == 2 and channels != 1):
-        msg = f"array of shape {arr.shape} does not fit encoding {encoding}"
-        raise ValueError(msg)
-    return Image(
-        header=hdr,
-        height=h,
-        width=w,
-        encoding=encoding,
-        is_bigendian=0,
-        step=w * channels * arr.dtype.itemsize,
-        data=arr.tobytes(),
-    )
-
-
-def image_to_numpy(msg: Image) -> npt.NDArray[Any]:
-    """Inverse of :func:`numpy_to_image` for the encodings the bridge publishes."""
-    if msg.encoding not in _ENCODINGS:
-        err = f"unsupported encoding {msg.encoding!r}"
-        raise ValueError(err)
-    dtype, channels = _ENCODINGS[msg.encoding]
-    dt = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
-    row = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(msg.height, msg.step)
-    px = row[:, : msg.width * channels * dt.itemsize].copy().view(dt)
-    shape = (msg.height, msg.width, channels) if channels > 1 else (msg.height, msg.width)
-    return px.reshape(shape).astype(dt.newbyteorder("="))
 
 
 def camera_info(camera: CameraModel, hdr: Header) -> CameraInfo:

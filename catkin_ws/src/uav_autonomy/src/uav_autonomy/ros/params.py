@@ -1,0 +1,73 @@
+"""The autonomy nodes' private parameters and their sections of ``config/autonomy.yaml``.
+
+Each node declares its ``~params`` as a frozen dataclass (below), parsed once at start-up by
+:func:`uav_common.ros.params.node_params`; an unknown or mistyped parameter stops the node.
+``~config`` names the settings file (empty: the project's ``config/autonomy.yaml``, found by
+:func:`uav_common.paths.config_file`), ``~overrides`` is merged over the node's section.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from uav_autonomy.errors import AutonomyConfigError
+from uav_common.config import config_errors_as
+from uav_common.paths import config_file
+from uav_common.ros.params import load_section
+
+__all__ = ["ControllerParams", "FeatureParams", "GoalSelectorParams", "PlannerParams", "autonomy_section"]
+
+T = TypeVar("T")
+
+GROUND_TRUTH_ODOM = "/uav/ground_truth/odom"
+
+
+def autonomy_section(cls: type[T], section: str, config: str, overrides: Mapping[str, Any]) -> T:
+    """``section`` of the settings file ``config`` (empty: ``config/autonomy.yaml``) with ``overrides`` over it.
+
+    Raises:
+        AutonomyConfigError: missing file or section, unknown key, wrong type, failed validation.
+    """
+    with config_errors_as(AutonomyConfigError):
+        path = Path(config).expanduser() if config else config_file("autonomy.yaml")
+        return load_section(cls, path, section, overrides)
+
+
+@dataclass(frozen=True)
+class FeatureParams:
+    """``feature_evaluator``'s private parameters."""
+
+    config: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    odom_topic: str = GROUND_TRUTH_ODOM
+    image_ns: str = "/autonomy/feature_images"
+
+
+@dataclass(frozen=True)
+class GoalSelectorParams:
+    """``goal_selector``'s private parameters."""
+
+    config: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    odom_topic: str = GROUND_TRUTH_ODOM
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """``path_planner``'s private parameters."""
+
+    config: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    odom_topic: str = GROUND_TRUTH_ODOM
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """``waypoint_controller``'s private parameters (``connection_url``, when set, wins over the file's)."""
+
+    config: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    connection_url: str = ""

@@ -1,0 +1,505 @@
+"""Scenario files (``config/scenarios/*.yaml``) as frozen dataclasses.
+
+A scenario says which world to fly in, how the map and the autonomy are set up,
+what the mission is (loiter or search and rescue, autonomous or a scripted
+baseline), when the run stops, how time runs and what is recorded.  It is parsed
+once, strictly (:func:`uav_common.config.load_config`: an unknown key or a wrong
+type fails with the file and key), and every process of a run reads its settings
+from the same file.
+
+Relative paths inside a scenario file are relative to the file's own folder.
+Positions are metres in the ``map`` frame (ENU, origin = home on the ground).
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+from uav_common.config import config_errors_as, load_config
+from uav_scenarios.errors import ScenarioConfigError
+
+__all__ = [
+    "AutonomySpec",
+    "DepthSource",
+    "MapBackend",
+    "MapSpec",
+    "MissionKind",
+    "PersonSpec",
+    "RecordingSpec",
+    "Scenario",
+    "ScoringSpec",
+    "SearchSpec",
+    "StopCriteria",
+    "Strategy",
+    "TargetSpec",
+    "TimeMode",
+    "TimeSpec",
+    "WorldSpec",
+    "effective_yaml",
+    "load_scenario",
+    "played_topics",
+    "recorded_topics",
+    "replay_inputs",
+]
+
+Point2 = tuple[float, float]
+
+#: Feature names the goal selector knows plus ``origin`` (distance from home).
+FEATURE_NAMES = ("age", "frontier", "target", "drone", "origin")
+
+
+class MissionKind(enum.Enum):
+    LOITER = "loiter"
+    SEARCH_AND_RESCUE = "search_and_rescue"
+
+
+class Strategy(enum.Enum):
+    """Who decides where to fly: the MCDM autonomy, or a scripted baseline pattern."""
+
+    AUTONOMOUS = "autonomous"
+    LAWNMOWER = "lawnmower"
+    EXPANDING_SQUARE = "expanding_square"
+
+
+class TimeMode(enum.Enum):
+    FREE = "free"
+    LOCKSTEP = "lockstep"
+
+
+class MapBackend(enum.Enum):
+    OCTOMAP = "octomap"
+    OPENVDB = "openvdb"
+
+
+class DepthSource(enum.Enum):
+    GROUND_TRUTH = "ground_truth"
+    ESTIMATED = "estimated"
+
+
+def _check_polygon(name: str, polygon: tuple[Point2, ...]) -> None:
+    if polygon and len(polygon) < 3:
+        msg = f"{name} needs at least 3 vertices, got {len(polygon)}"
+        raise ValueError(msg)
+
+
+def polygon_area_m2(polygon: tuple[Point2, ...]) -> float:
+    """Unsigned shoelace area of a simple polygon, m²."""
+    total = 0.0
+    for (x0, y0), (x1, y1) in zip(polygon, polygon[1:] + polygon[:1], strict=True):
+        total += x0 * y1 - x1 * y0
+    return abs(total) / 2.0
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """The world: a world-generator config and its seed (same seed, same world)."""
+
+    config: Path = Path("../worlds/default.yaml")
+    #: World seed; ``None`` keeps the world file's own seed. A different seed gives a
+    #: different world (the launchers write a derived world file with this seed).
+    seed: int | None = None
+    #: Size of the square scene used as the "% mapped" denominator when the world's
+    #: own bounds are unknown; the world's ground truth wins when it is available.
+    size_m: float = 1000.0
+
+    def __post_init__(self) -> None:
+        if self.size_m <= 0:
+            msg = f"size_m must be > 0, got {self.size_m}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    backend: MapBackend = MapBackend.OCTOMAP
+    resolution_m: float = 0.5
+    #: The camera whose depth (ground truth or estimated) feeds the map.
+    camera: str = "nadir"
+    #: Extra private parameters for the map server, passed through untouched.
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.resolution_m <= 10.0:
+            msg = f"resolution_m must be within [0.05, 10] m, got {self.resolution_m}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """The goal selector's target: a point, or a polygon (its nearest point counts)."""
+
+    point_m: Point2 | None = (0.0, 0.0)
+    polygon_m: tuple[Point2, ...] = ()
+
+    def __post_init__(self) -> None:
+        _check_polygon("polygon_m", self.polygon_m)
+        if self.point_m is None and not self.polygon_m:
+            msg = "give a target point_m or a polygon_m"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class AutonomySpec:
+    #: Feature weights of the MCDM score (0 = feature off; negative = avoid: e.g. ``age: -1`` sends the
+    #: drone to cells seen long ago, since the age feature is 1 for a cell seen just now).
+    weights: dict[str, float] = field(
+        default_factory=lambda: {"age": 1.0, "frontier": 1.0, "target": 1.0, "drone": 1.0}
+    )
+    target: TargetSpec = field(default_factory=TargetSpec)
+    #: Cruise altitude = highest known elevation along the path + this buffer.
+    cruise_buffer_m: float = 50.0
+    cruise_speed_mps: float = 8.0
+    takeoff_alt_m: float = 30.0
+    age_half_life_s: float = 60.0
+    #: Path planner algorithm: ``straight`` (climb, cruise, descend) or ``astar`` (3D over the voxel map).
+    planner: Literal["straight", "astar"] = "straight"
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.weights) - set(FEATURE_NAMES))
+        if unknown:
+            msg = f"unknown feature weight(s) {unknown}; known: {', '.join(FEATURE_NAMES)}"
+            raise ValueError(msg)
+        if not all(math.isfinite(w) for w in self.weights.values()):
+            msg = f"weights must be finite, got {self.weights}"
+            raise ValueError(msg)
+        if not any(w != 0 for w in self.weights.values()):
+            msg = "at least one feature weight must be non-zero"
+            raise ValueError(msg)
+        for name in ("cruise_buffer_m", "cruise_speed_mps", "takeoff_alt_m", "age_half_life_s"):
+            if getattr(self, name) <= 0:
+                msg = f"{name} must be > 0, got {getattr(self, name)}"
+                raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class PersonSpec:
+    """The person of interest (search and rescue): placed at random, seeded, inside a region."""
+
+    #: Which person of the world's object list is the person of interest (moved into place).
+    name: str = "person_0000"
+    placement_seed: int = 1
+    #: Where the person may be; a polygon in map metres.
+    region_m: tuple[Point2, ...] = ((-100.0, -400.0), (100.0, -400.0), (100.0, -250.0), (-100.0, -250.0))
+    #: Keep the person this far from any obstacle and from home.
+    clearance_m: float = 5.0
+    #: Fixed position instead of a random one (overrides the seed).
+    position_m: Point2 | None = None
+
+    def __post_init__(self) -> None:
+        _check_polygon("region_m", self.region_m)
+        if not self.region_m and self.position_m is None:
+            msg = "give the person a region_m or a position_m"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class SearchSpec:
+    """Search and rescue: prior knowledge, detection, confirmation and the search area."""
+
+    person: PersonSpec = field(default_factory=PersonSpec)
+    #: Detections feed: the bridge's ground truth, or any detector publishing the same type.
+    detection_topic: str = "/detections/ground_truth"
+    camera: str = "forward"
+    detection_range_m: float = 100.0
+    #: A person is confirmed after this many detections within ``confirm_window_s``.
+    confirm_detections: int = 3
+    confirm_window_s: float = 3.0
+    #: Where the scripted baselines search (and what "% of search area seen" refers to).
+    area_m: tuple[Point2, ...] = ((-250.0, -450.0), (250.0, -450.0), (250.0, -50.0), (-250.0, -50.0))
+    #: Lane spacing of the lawnmower / leg increment of the expanding square.
+    track_spacing_m: float = 80.0
+    #: Altitude of the scripted baselines, metres above ``scripted_alt_reference``.
+    scripted_alt_m: float = 40.0
+    #: ``terrain``: the pattern is flown ``scripted_alt_m`` above the ground under it, planned on the world's
+    #: terrain as a prior DEM (a ground station's terrain-frame survey); ``home``: at one altitude above home
+    #: (it flies into any hill higher than that, which is a collision).
+    scripted_alt_reference: Literal["terrain", "home"] = "terrain"
+    #: Hold (stop and stare) distance from the person once confirmed.
+    hold_alt_m: float = 25.0
+
+    def __post_init__(self) -> None:
+        _check_polygon("area_m", self.area_m)
+        if self.detection_range_m <= 0 or self.track_spacing_m <= 0 or self.scripted_alt_m <= 0:
+            msg = "detection_range_m, track_spacing_m and scripted_alt_m must be > 0"
+            raise ValueError(msg)
+        if self.confirm_detections < 1 or self.confirm_window_s <= 0:
+            msg = "confirm_detections must be >= 1 and confirm_window_s > 0"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class StopCriteria:
+    """The run stops at the first criterion met. Times are simulation seconds."""
+
+    time_limit_s: float = 300.0
+    mapped_pct: float | None = None
+    target_found: bool = False
+    #: With ``target_found``: keep holding over the person this long before stopping.
+    after_target_found_s: float = 5.0
+    #: Stop (and the report flags it) when the battery falls to this remaining %.
+    battery_reserve_pct: float | None = 20.0
+    on_collision: bool = True
+    #: Wall-clock guard so a wedged simulation cannot hang a shell forever.
+    wall_timeout_s: float = 3600.0
+
+    def __post_init__(self) -> None:
+        if self.time_limit_s <= 0 or self.wall_timeout_s <= 0 or self.after_target_found_s < 0:
+            msg = "time_limit_s and wall_timeout_s must be > 0, after_target_found_s >= 0"
+            raise ValueError(msg)
+        if self.mapped_pct is not None and not 0 < self.mapped_pct <= 100:
+            msg = f"mapped_pct must be within (0, 100], got {self.mapped_pct}"
+            raise ValueError(msg)
+        if self.battery_reserve_pct is not None and not 0 <= self.battery_reserve_pct < 100:
+            msg = f"battery_reserve_pct must be within [0, 100), got {self.battery_reserve_pct}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class TimeSpec:
+    mode: TimeMode = TimeMode.FREE
+    #: Free-running speed factor (1 = real time); ignored in lockstep.
+    speed_factor: float = 1.0
+    #: Lockstep: simulation seconds granted per step (one camera frame period).
+    step_s: float = 0.1
+    #: Lockstep only: the step master waits until every process of the run is idle before it
+    #: publishes and before it grants (``uav_sim_bridge.shell.settle``), so two runs of the same
+    #: scenario give the same trajectory and metrics. Slower (no pipelining).
+    deterministic: bool = False
+
+    def __post_init__(self) -> None:
+        if self.speed_factor <= 0 or self.step_s <= 0:
+            msg = "speed_factor and step_s must be > 0"
+            raise ValueError(msg)
+        if self.deterministic and self.mode is not TimeMode.LOCKSTEP:
+            msg = "deterministic: true needs mode: lockstep"
+            raise ValueError(msg)
+
+
+#: Topic sets for ``rosbag record``. ``report`` is what ``uav-report`` needs (small);
+#: ``replay`` adds what re-drives the map server, the evaluators and the scorer without
+#: the simulator (tf and the map camera's depth input, see :func:`recorded_topics`: big).
+RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
+    "report": (
+        "/uav/ground_truth/odom",
+        "/uav/sim_state",
+        "/uav/battery",
+        "/uav/controller/state",
+        "/autonomy/goal",
+        "/autonomy/goal_reason",
+        "/autonomy/path",
+        "/autonomy/target",
+        "/autonomy/weights",
+        "/autonomy/target_point",
+        "/detections/ground_truth",
+        "/sim/collision",
+        "/map_server/insert_stats",
+        "/scenario/config",
+        "/scenario/status",
+        "/scenario/metrics",
+        "/scenario/tracks",
+        "/scenario/snapshot/layers",
+        "/scenario/snapshot/features",
+        "/scenario/snapshot/nadir/color",
+        "/scenario/snapshot/nadir/depth",
+        "/scenario/snapshot/nadir/instance",
+        "/scenario/snapshot/forward/color",
+        "/scenario/snapshot/forward/depth",
+        "/scenario/snapshot/forward/instance",
+        "/depth_evaluator/metrics",
+        "/depth_estimator/status",
+    ),
+    "replay": ("/tf", "/tf_static"),
+}
+
+
+@dataclass(frozen=True)
+class RecordingSpec:
+    enabled: bool = True
+    #: ``report`` (small: what the report needs) or ``replay`` (adds tf and point clouds).
+    preset: str = "report"
+    extra_topics: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.preset not in RECORDING_PRESETS:
+            msg = f"preset must be one of {sorted(RECORDING_PRESETS)}, got {self.preset!r}"
+            raise ValueError(msg)
+        bad = [t for t in self.extra_topics if not t.startswith("/")]
+        if bad:
+            msg = f"extra_topics must be absolute topic names, got {bad}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class ScoringSpec:
+    metrics_rate_hz: float = 1.0
+    #: Altitude above ground below which time is counted as "too low".
+    altitude_floor_m: float = 10.0
+    #: Simulation times of the report's map snapshots (the paper's 15, 45, 125, 230 s).
+    snapshot_times_s: tuple[float, ...] = (15.0, 45.0, 125.0, 230.0)
+    #: Tracker association gate and MOT evaluation gate, metres on the ground.
+    track_gate_m: float = 5.0
+    #: Simulation seconds between map-accuracy evaluations (export of the map's occupied voxels).
+    map_accuracy_period_s: float = 10.0
+    #: Snapshot grids (elevation, score) are reduced to at most this many cells per side for the report.
+    snapshot_max_cells: int = 800
+    #: Altitude bands (m above ground) for the context breakdown; edges, ascending.
+    altitude_bands_m: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0, 1000.0)
+    range_bands_m: tuple[float, ...] = (0.0, 25.0, 50.0, 75.0, 100.0, 1000.0)
+    view_angle_bands_deg: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)
+    clutter_bands: tuple[float, ...] = (0.0, 1.0, 3.0, 1000.0)
+
+    def __post_init__(self) -> None:
+        if self.metrics_rate_hz <= 0 or self.map_accuracy_period_s <= 0 or self.snapshot_max_cells < 16:
+            msg = "metrics_rate_hz and map_accuracy_period_s must be > 0, snapshot_max_cells >= 16"
+            raise ValueError(msg)
+        for name in ("altitude_bands_m", "range_bands_m", "view_angle_bands_deg", "clutter_bands"):
+            edges = getattr(self, name)
+            if len(edges) < 2 or any(b <= a for a, b in itertools.pairwise(edges)):
+                msg = f"{name} must be at least 2 strictly ascending edges, got {edges}"
+                raise ValueError(msg)
+        if list(self.snapshot_times_s) != sorted(self.snapshot_times_s):
+            msg = f"snapshot_times_s must be ascending, got {self.snapshot_times_s}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    mission: MissionKind
+    strategy: Strategy = Strategy.AUTONOMOUS
+    description: str = ""
+    world: WorldSpec = field(default_factory=WorldSpec)
+    map: MapSpec = field(default_factory=MapSpec)
+    depth_source: DepthSource = DepthSource.GROUND_TRUTH
+    autonomy: AutonomySpec = field(default_factory=AutonomySpec)
+    search: SearchSpec | None = None
+    stop: StopCriteria = field(default_factory=StopCriteria)
+    time: TimeSpec = field(default_factory=TimeSpec)
+    recording: RecordingSpec = field(default_factory=RecordingSpec)
+    scoring: ScoringSpec = field(default_factory=ScoringSpec)
+    #: Per-node private parameter overrides, e.g. ``{sim_bridge: {cameras: ...}}``.
+    node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The file this scenario came from (set by :func:`load_scenario`).
+    source: Path | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c in "-_" for c in self.name):
+            msg = f"name must be a non-empty slug (letters, digits, - and _), got {self.name!r}"
+            raise ValueError(msg)
+        if self.mission is MissionKind.SEARCH_AND_RESCUE and self.search is None:
+            msg = "a search_and_rescue mission needs a 'search' section"
+            raise ValueError(msg)
+        if self.strategy is not Strategy.AUTONOMOUS and self.search is None:
+            msg = f"strategy {self.strategy.value} flies over search.area_m: add a 'search' section"
+            raise ValueError(msg)
+        if self.stop.target_found and self.mission is not MissionKind.SEARCH_AND_RESCUE:
+            msg = "stop.target_found only makes sense for a search_and_rescue mission"
+            raise ValueError(msg)
+
+    @property
+    def world_config_path(self) -> Path:
+        """The world config, resolved against the scenario file's folder."""
+        if self.world.config.is_absolute() or self.source is None:
+            return self.world.config
+        return (self.source.parent / self.world.config).resolve()
+
+
+def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
+    """What the map server (and, with estimated depth, the depth nodes) need in a replay.
+
+    Ground-truth depth: the map camera's depth and color images and the depth camera's info (the map
+    server back-projects them itself). Estimated depth: both images and both camera infos, so the
+    estimator and the evaluator run again. Every topic listed has a reader in the replay (rosbag play
+    waits for one per played topic).
+    """
+    cam = f"/cameras/{scenario.map.camera}"
+    if scenario.depth_source is DepthSource.GROUND_TRUTH:
+        return (f"{cam}/depth/image_raw", f"{cam}/color/image_raw", f"{cam}/depth/camera_info")
+    return (f"{cam}/color/image_raw", f"{cam}/color/camera_info", f"{cam}/depth/image_raw", f"{cam}/depth/camera_info")
+
+
+#: Recorded topics that a replay plays back besides :func:`replay_inputs` and tf (everything the
+#: scorer, the tracker and the feature evaluator read that the replay does not regenerate).
+REPLAYED_TOPICS = (
+    "/uav/ground_truth/odom",
+    "/uav/battery",
+    "/uav/controller/state",
+    "/autonomy/goal_reason",
+    "/autonomy/target",
+    "/autonomy/weights",
+    "/detections/ground_truth",
+    "/sim/collision",
+    "/scenario/status",
+)
+
+
+def played_topics(scenario: Scenario) -> tuple[str, ...]:
+    """What ``rosbag play`` publishes in a replay (the map server, the evaluators, the tracker and the
+    scorer regenerate everything else)."""
+    topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
+    if scenario.search is not None and scenario.search.detection_topic not in topics:
+        topics.append(scenario.search.detection_topic)
+    return tuple(topics)
+
+
+def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
+    """The topic list for ``rosbag record`` (presets are cumulative: replay includes report)."""
+    spec = scenario.recording
+    topics = list(RECORDING_PRESETS["report"])
+    if scenario.search is not None and scenario.search.detection_topic not in topics:
+        topics.append(scenario.search.detection_topic)
+    if spec.preset == "replay":
+        topics += RECORDING_PRESETS["replay"]
+        topics += replay_inputs(scenario)
+    topics += [t for t in spec.extra_topics if t not in topics]
+    return tuple(topics)
+
+
+def effective_yaml(scenario: Scenario, note: str = "") -> str:
+    """The scenario as a self-contained YAML file (absolute world path, no ``source``), loadable anywhere."""
+    import yaml  # noqa: PLC0415
+
+    from uav_common.config import to_mapping  # noqa: PLC0415
+
+    data = to_mapping(scenario)
+    data.pop("source", None)
+    data["world"]["config"] = str(scenario.world_config_path)
+    header = f"# Effective scenario of a run (from {scenario.source}{note}).\n"
+    return header + yaml.safe_dump(data, sort_keys=False)
+
+
+def load_scenario(path: Path, *, overrides: dict[str, Any] | None = None) -> Scenario:
+    """Parse and validate a scenario file.
+
+    Args:
+        path: the YAML file.
+        overrides: top-level field replacements applied after parsing
+            (e.g. ``{"stop": StopCriteria(time_limit_s=30)}`` from a command line).
+
+    Raises:
+        ScenarioConfigError: the file is missing, not YAML, has an unknown key, a wrong type
+            or an inconsistent setting; the message names the file and the key.
+    """
+    with config_errors_as(ScenarioConfigError):
+        scenario = load_config(Scenario, path)
+    if scenario.source is not None:
+        msg = f"{path}: 'source' is set by the loader, remove it from the file"
+        raise ScenarioConfigError(msg)
+    scenario = replace(scenario, source=path.resolve())
+    if not scenario.world_config_path.is_file():
+        msg = (
+            f"{path}: world.config {scenario.world.config} does not exist (looked for {scenario.world_config_path}; "
+            "relative paths are relative to the scenario file)"
+        )
+        raise ScenarioConfigError(msg)
+    if overrides:
+        try:
+            scenario = replace(scenario, **overrides)
+        except (TypeError, ValueError) as err:
+            msg = f"{path}: invalid override {sorted(overrides)}: {err}"
+            raise ScenarioConfigError(msg) from err
+    return scenario

@@ -1,0 +1,150 @@
+"""Scenario -> the command lines and files of a run's non-ROS processes (SITL, router).
+
+Pure: functions of the scenario, the ports and the run folder. The launcher nodes
+(``nodes/sitl``, ``nodes/mavlink_router``) and ``uav-run`` call them, so a run
+started by ``roslaunch`` and one started by ``uav-run`` are the same run.
+
+Ports (every one settable; tests use free ones): the SITL's TCP server (the router
+connects), its simulation link (the bridge connects), and the router's endpoints
+(GCS, controller, MAVSDK, ad-hoc UDP server, TCP server). With the router, the SITL's
+own GCS and API UDP links are switched off (``docs/architecture.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from uav_scenarios.core.config import Scenario, TimeMode
+from uav_scenarios.errors import ScenarioError
+
+__all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv"]
+
+
+@dataclass(frozen=True)
+class RunPorts:
+    """Every port of one run (defaults: ``docs/architecture.md``)."""
+
+    sitl_tcp: int = 5760
+    sim: int = 4560
+    router_tcp: int = 5790
+    gcs: int = 14550
+    controller: int = 14540
+    mavsdk: int = 14541
+    adhoc: int = 14555
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not isinstance(value, int) or not 0 < value < 65536:
+                msg = f"port {f.name} must be an integer in 1..65535, got {value!r}"
+                raise ScenarioError(msg)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> RunPorts:
+        """From ``{name: port}`` (strings allowed, as launch arguments are); unknown names are errors."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            msg = f"unknown port name(s) {unknown}; known: {sorted(known)}"
+            raise ScenarioError(msg)
+        try:
+            return cls(**{k: int(v) for k, v in data.items()})
+        except ValueError as err:
+            msg = f"ports must be integers: {dict(data)}"
+            raise ScenarioError(msg) from err
+
+
+def flatten_settings(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """``{a: {b: 1}, c: 2}`` -> ``[("a.b", 1), ("c", 2)]`` (for ``uav-sitl --set KEY=VALUE``)."""
+    out: list[tuple[str, Any]] = []
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            out.extend(flatten_settings(value, name + "."))
+        else:
+            out.append((name, value))
+    return out
+
+
+def _yaml_scalar(value: Any) -> str:
+    """A value as ``--set`` parses it (YAML): lists/dicts in flow style, None as null."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and not math.isfinite(value):
+        msg = f"non-finite SITL setting {value!r}"
+        raise ScenarioError(msg)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{k}: {_yaml_scalar(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router: bool = True) -> list[str]:
+    """The ``uav-sitl`` command line of a scenario run.
+
+    * a private parameter file, reset at start (a run never inherits another run's parameters);
+    * ``time.unix_epoch_s = 0`` (SYSTEM_TIME does not depend on the wall clock);
+    * lockstep, or the scenario's speed factor;
+    * ``node_params.sitl`` as ``--set`` overrides (any ``config/sitl.yaml`` key, e.g.
+      ``failsafe.geofence_max_altitude_m``).
+    """
+    argv = [
+        "uav-sitl",
+        "--tcp-port", str(ports.sitl_tcp),
+        "--sim-port", str(ports.sim),
+        "--params-file", str(params_file),
+        "--reset-params",
+        "--set", "time.unix_epoch_s=0",
+    ]  # fmt: skip
+    if router:
+        argv += ["--no-gcs", "--no-api"]
+    else:
+        # Without the router the controller listens where the API link sends; local ports: any free one.
+        argv += [
+            "--gcs-port", str(ports.gcs), "--gcs-local-port", "0",
+            "--api-port", str(ports.controller), "--api-local-port", "0",
+        ]  # fmt: skip
+    if scenario.time.mode is TimeMode.LOCKSTEP:
+        argv.append("--lockstep")
+    else:
+        argv += ["--speed-factor", f"{scenario.time.speed_factor:g}"]
+    for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
+        argv += ["--set", f"{key}={_yaml_scalar(value)}"]
+    return argv
+
+
+def router_conf(ports: RunPorts, log_dir: Path | None) -> str:
+    """A ``uav-mavlink-router`` configuration (mavlink-routerd INI) for these ports.
+
+    Same endpoints as ``config/router.conf``: the SITL's TCP server, a GCS, the
+    controller and MAVSDK as UDP clients, an ad-hoc UDP server and a TCP server.
+    """
+    lines = [
+        "# Written by the scenario launcher for one run (see config/router.conf for the defaults).",
+        "[General]",
+        f"TcpServerPort = {ports.router_tcp}",
+        "ReportStats = false",
+        "StatsInterval = 10",
+        "MavlinkDialect = auto",
+        "DebugLogLevel = info",
+    ]
+    if log_dir is not None:
+        lines += [f"Log = {log_dir}", "LogMode = always", "LogTelemetry = true"]
+    lines += [
+        "",
+        "[TcpEndpoint sitl]",
+        "Address = 127.0.0.1",
+        f"Port = {ports.sitl_tcp}",
+        "RetryTimeout = 2",
+    ]
+    for name, port in (("gcs", ports.gcs), ("controller", ports.controller), ("mavsdk", ports.mavsdk)):
+        lines += ["", f"[UdpEndpoint {name}]", "Mode = Normal", "Address = 127.0.0.1", f"Port = {port}"]
+    lines += ["", "[UdpEndpoint adhoc]", "Mode = Server", "Address = 0.0.0.0", f"Port = {ports.adhoc}", ""]
+    return "\n".join(lines)

@@ -1,0 +1,609 @@
+"""The run scorer: accumulates a run's observations and turns them into metrics.
+
+One :class:`RunScorer` is fed records (``uav_scenarios.core.scoring.types``) in simulation-time
+order by the live scorer node, a replay or the offline bag reader. At any time
+:meth:`RunScorer.sample` gives one time-series row and :meth:`RunScorer.summary`
+the nested metric dictionary written to ``metrics.json``. Every statistic with a
+natural context is also broken down by context: clutter (objects in view), view
+angle, range and altitude band.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from uav_scenarios.core.config import ScoringSpec
+from uav_scenarios.core.scoring.metrics import (
+    VoxelAccuracy,
+    altitude_stats,
+    band_label,
+    band_of,
+    battery_use,
+    coverage_efficiency,
+    mapped_area_m2,
+    match_detections,
+    mean_cell_age_s,
+    view_angle_deg,
+    voxel_accuracy,
+)
+from uav_scenarios.core.scoring.types import (
+    BatterySample,
+    CollisionEvent,
+    ControllerSample,
+    DepthMetricsSample,
+    Detection,
+    DetectionFrame,
+    GoalSample,
+    GridSnapshot,
+    PoseSample,
+    SceneTruth,
+    TrackFrame,
+)
+from uav_scenarios.core.tracking import MotScorer
+from uav_scenarios.errors import ScoringError
+
+__all__ = ["CONTEXTS", "DetectionCounts", "RunScorer", "swath_width_m"]
+
+#: Context dimensions of the breakdown and the unit of their bands.
+CONTEXTS = {"clutter": "objects", "view_angle": "deg", "range": "m", "altitude": "m"}
+_FRAME_KEY_DIGITS = 4  # stamps are matched to 0.1 ms
+
+
+def swath_width_m(altitude_m: float, fov_deg: float) -> float:
+    """Ground swath of a nadir camera: ``2 h tan(fov/2)``."""
+    return 2.0 * altitude_m * math.tan(math.radians(fov_deg) / 2.0)
+
+
+@dataclass
+class DetectionCounts:
+    tp: int = 0
+    fp: int = 0
+    fn: int = 0
+
+    @property
+    def precision(self) -> float:
+        return self.tp / (self.tp + self.fp) if self.tp + self.fp else math.nan
+
+    @property
+    def recall(self) -> float:
+        return self.tp / (self.tp + self.fn) if self.tp + self.fn else math.nan
+
+    def as_dict(self) -> dict[str, float]:
+        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall}
+
+
+@dataclass(frozen=True)
+class _DepthFrame:
+    sample: DepthMetricsSample
+    ctx: dict[str, str]
+
+    @property
+    def values(self) -> dict[str, float]:
+        return self.sample.values
+
+
+@dataclass
+class _FirstDetection:
+    t_s: float
+    range_m: float
+
+
+@dataclass
+class RunScorer:
+    """Accumulates one run. Feed records in time order; read ``sample()`` / ``summary()``.
+
+    Args:
+        spec: scoring settings (floors, bands, gates).
+        truth: the scene's ground truth (bounds, surface voxels, ground heights).
+        detection_source: the ``DetectionFrame.source`` of the detector under test
+            (``ground_truth`` when the ground truth itself is the detector).
+        person_id: instance id of the person of interest, 0 if none.
+        tracked_camera: camera whose detections the tracker follows.
+        swath_m_per_m: nadir swath width per metre of altitude (``2 tan(fov/2)``), for the
+            coverage efficiency; 0 if unknown.
+        camera_pitch_deg: each camera's mount pitch (90 = nadir), for the view-angle context
+            of per-frame depth statistics.
+    """
+
+    spec: ScoringSpec
+    truth: SceneTruth
+    detection_source: str = "ground_truth"
+    person_id: int = 0
+    tracked_camera: str = "forward"
+    cruise_speed_mps: float = math.nan
+    swath_m_per_m: float = 0.0
+    start_t_s: float = math.nan
+    camera_pitch_deg: dict[str, float] = field(default_factory=lambda: {"nadir": 90.0, "forward": 25.0})
+    #: Along-track over across-track footprint of the map camera (image height / width for a nadir camera).
+    footprint_aspect: float = 0.75
+    _poses: list[PoseSample] = field(default_factory=list)
+    _agl: list[float] = field(default_factory=list)
+    _distance_m: float = 0.0
+    _battery: list[BatterySample] = field(default_factory=list)
+    _layers: GridSnapshot | None = None
+    _mapped_m2: float = 0.0
+    _map_accuracy: VoxelAccuracy | None = None
+    _map_accuracy_t_s: float = math.nan
+    _collisions: list[CollisionEvent] = field(default_factory=list)
+    _goals: list[GoalSample] = field(default_factory=list)
+    _controller: list[ControllerSample] = field(default_factory=list)
+    _depth: list[_DepthFrame] = field(default_factory=list)
+    _pending_truth: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
+    _pending_hyp: dict[tuple[str, float], DetectionFrame] = field(default_factory=dict)
+    _pending_tracks: dict[tuple[str, float], TrackFrame] = field(default_factory=dict)
+    _det_total: DetectionCounts = field(default_factory=DetectionCounts)
+    _det_by_context: dict[str, dict[int, DetectionCounts]] = field(
+        default_factory=lambda: {c: defaultdict(DetectionCounts) for c in CONTEXTS}
+    )
+    _det_frames: int = 0
+    _first_person_seen: _FirstDetection | None = None
+    _first_person_detected: _FirstDetection | None = None
+    _first_detection_any: _FirstDetection | None = None
+    _mot: MotScorer | None = None
+    _mot_by_context: dict[str, dict[int, MotScorer]] = field(default_factory=dict)
+    _events: list[tuple[float, str]] = field(default_factory=list)
+    _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
+    _tracking_cache: dict[str, Any] | None = None
+    _takeoff_t_s: float | None = None
+    _complete_t_s: float = math.nan
+    _complete_what: str = ""
+    _last_t_s: float = -math.inf
+
+    # ---- feeding -------------------------------------------------------------------------
+
+    def _advance(self, t_s: float) -> None:
+        if not math.isfinite(t_s):
+            msg = f"record with non-finite time {t_s}"
+            raise ScoringError(msg)
+        if math.isnan(self.start_t_s):
+            self.start_t_s = t_s
+        self._last_t_s = max(self._last_t_s, t_s)
+
+    def add_pose(self, pose: PoseSample) -> None:
+        self._advance(pose.t_s)
+        if self._poses:
+            prev = self._poses[-1]
+            if pose.t_s < prev.t_s:
+                return  # a stale duplicate (e.g. bag re-ordering); never count it twice
+            self._distance_m += math.dist(prev.position_m, pose.position_m)
+        self._poses.append(pose)
+        self._agl.append(self._ground_clearance(pose))
+
+    def add_battery(self, sample: BatterySample) -> None:
+        self._advance(sample.t_s)
+        self._battery.append(sample)
+
+    def add_layers(self, layers: GridSnapshot) -> None:
+        self._advance(layers.t_s)
+        self._layers = layers
+        self._mapped_m2 = mapped_area_m2(layers, self.truth.bounds_m)
+
+    def add_map_keys(self, t_s: float, keys: np.ndarray[Any, np.dtype[np.int64]]) -> VoxelAccuracy | None:
+        """Occupied voxel keys of the map at ``t_s`` (same resolution as the truth)."""
+        if self.truth.surface_keys.size == 0:
+            self._advance(t_s)
+            return None
+        self.set_map_accuracy(t_s, voxel_accuracy(keys, self.truth.surface_keys, self.truth.surface_columns))
+        return self._map_accuracy
+
+    def set_map_accuracy(self, t_s: float, accuracy: VoxelAccuracy) -> None:
+        """A map accuracy computed elsewhere (:func:`voxel_accuracy` is slow on big maps: off the lock)."""
+        self._advance(t_s)
+        self._map_accuracy = accuracy
+        self._map_accuracy_t_s = t_s
+
+    def add_collision(self, event: CollisionEvent) -> None:
+        self._advance(event.t_s)
+        self._collisions.append(event)
+        self._events.append((event.t_s, f"collision with {event.class_name} {event.instance_id}"))
+
+    def add_goal(self, goal: GoalSample) -> None:
+        self._advance(goal.t_s)
+        self._goals.append(goal)
+
+    def add_controller(self, sample: ControllerSample) -> None:
+        self._advance(sample.t_s)
+        if not self._controller or self._controller[-1].state != sample.state:
+            self._events.append((sample.t_s, f"controller {sample.state}"))
+        self._controller.append(sample)
+
+    def add_depth_metrics(self, sample: DepthMetricsSample) -> None:
+        self._advance(sample.t_s)
+        self._depth.append(_DepthFrame(sample, self._depth_context(sample)))
+
+    def add_event(self, t_s: float, text: str) -> None:
+        self._advance(t_s)
+        self._events.append((t_s, text))
+
+    def mark_complete(self, t_s: float, what: str) -> None:
+        """The mission's task is done (person confirmed, area mapped); the first call wins."""
+        self._advance(t_s)
+        if math.isnan(self._complete_t_s):
+            self._complete_t_s = t_s
+            self._complete_what = what
+            self._events.append((t_s, f"complete: {what}"))
+
+    def add_detections(self, frame: DetectionFrame, *, is_truth: bool) -> None:
+        """A frame of ground-truth detections, of the detector under test, or both.
+
+        Frames are paired by ``(camera, stamp)``: a ground-truth frame is scored once
+        the detector's frame of the same image arrives (detectors may skip images;
+        skipped images are not scored).
+        """
+        self._advance(frame.t_s)
+        key = (frame.camera, round(frame.t_s, _FRAME_KEY_DIGITS))
+        both = is_truth and frame.source == self.detection_source
+        if is_truth:
+            self._note_person_seen(frame)
+            self._pending_truth[key] = frame
+            self._clutter[key] = len(frame.detections)
+        if both or not is_truth:
+            self._pending_hyp[key] = frame
+        self._score_pending(key)
+        self._prune(frame.t_s)
+
+    def add_tracks(self, frame: TrackFrame) -> None:
+        self._advance(frame.t_s)
+        key = (frame.camera, round(frame.t_s, _FRAME_KEY_DIGITS))
+        self._pending_tracks[key] = frame
+        self._score_pending(key)
+
+    # ---- internals -----------------------------------------------------------------------
+
+    def _ground_clearance(self, pose: PoseSample) -> float:
+        x, y, z = pose.position_m
+        ground = math.nan
+        if self.truth.ground is not None:
+            ground = self.truth.ground.value_at("elevation_m", x, y)
+        if math.isnan(ground) and self._layers is not None:
+            ground = self._layers.value_at("elevation_m", x, y)
+        if math.isnan(ground):
+            ground = 0.0  # home level: the terrain under home is z = 0 by convention
+        return z - ground
+
+    def _pose_at(self, t_s: float) -> tuple[PoseSample | None, float]:
+        if not self._poses:
+            return None, math.nan
+        times = [p.t_s for p in self._poses[-200:]]
+        k = int(np.argmin(np.abs(np.asarray(times) - t_s)))
+        return self._poses[-200:][k], self._agl[-200:][k]
+
+    def _note_person_seen(self, frame: DetectionFrame) -> None:
+        if self._first_person_seen is not None or not self.person_id:
+            return
+        for d in frame.detections:
+            if d.instance_id == self.person_id:
+                self._first_person_seen = _FirstDetection(frame.t_s, d.range_m)
+                self._events.append((frame.t_s, f"person in view at {d.range_m:.0f} m"))
+
+    def _score_pending(self, key: tuple[str, float]) -> None:
+        truth = self._pending_truth.get(key)
+        hyp = self._pending_hyp.pop(key, None)
+        if truth is not None and hyp is not None:
+            self._score_detection_frame(truth, hyp)
+        elif hyp is not None:
+            self._pending_hyp[key] = hyp
+        tracks = self._pending_tracks.get(key)
+        if truth is not None and tracks is not None:
+            self._score_track_frame(truth, tracks)
+            del self._pending_tracks[key]
+
+    def _prune(self, now_s: float) -> None:
+        horizon = now_s - 10.0
+        for pending in (self._pending_truth, self._pending_hyp, self._pending_tracks, self._clutter):
+            for k in [k for k in pending if k[1] < horizon]:
+                del pending[k]
+
+    def _frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+        _, agl = self._pose_at(truth.t_s)
+        spec = self.spec
+        return {
+            "clutter": band_of(float(len(truth.detections)), spec.clutter_bands),
+            "altitude": band_of(agl, spec.altitude_bands_m),
+        }
+
+    def _object_context(self, det: Detection, frame_ctx: dict[str, int], camera_m: tuple[float, ...]) -> dict[str, int]:
+        spec = self.spec
+        angle = math.nan
+        if len(camera_m) == 3:
+            angle = view_angle_deg((camera_m[0], camera_m[1], camera_m[2]), det.position_m)
+        return {
+            **frame_ctx,
+            "range": band_of(det.range_m, spec.range_bands_m),
+            "view_angle": band_of(angle, spec.view_angle_bands_deg),
+        }
+
+    def _track_frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+        """A tracking frame's context: clutter and altitude, plus the median range and view angle of its objects."""
+        ctx = self._frame_context(truth)
+        pose, _ = self._pose_at(truth.t_s)
+        ranges = [d.range_m for d in truth.detections if math.isfinite(d.range_m)]
+        angles = [view_angle_deg(pose.position_m, d.position_m) for d in truth.detections] if pose is not None else []
+        angles = [a for a in angles if math.isfinite(a)]
+        spec = self.spec
+        ctx["range"] = band_of(float(np.median(ranges)) if ranges else math.nan, spec.range_bands_m)
+        ctx["view_angle"] = band_of(float(np.median(angles)) if angles else math.nan, spec.view_angle_bands_deg)
+        return ctx
+
+    def _count(self, ctx: dict[str, int], kind: str) -> None:
+        for name, band in ctx.items():
+            counts = self._det_by_context[name][band]
+            setattr(counts, kind, getattr(counts, kind) + 1)
+        setattr(self._det_total, kind, getattr(self._det_total, kind) + 1)
+
+    def _score_detection_frame(self, truth: DetectionFrame, hyp: DetectionFrame) -> None:
+        self._det_frames += 1
+        pose, _ = self._pose_at(truth.t_s)
+        camera_m: tuple[float, ...] = pose.position_m if pose is not None else ()
+        frame_ctx = self._frame_context(truth)
+        matches, missed, false = match_detections(truth.detections, hyp.detections)
+        for i, j in matches:
+            t_det = truth.detections[i]
+            self._count(self._object_context(t_det, frame_ctx, camera_m), "tp")
+            if self._first_detection_any is None:
+                self._first_detection_any = _FirstDetection(truth.t_s, t_det.range_m)
+            if self.person_id and t_det.instance_id == self.person_id and self._first_person_detected is None:
+                self._first_person_detected = _FirstDetection(truth.t_s, hyp.detections[j].range_m)
+                self._events.append((truth.t_s, f"person detected at {t_det.range_m:.0f} m"))
+        for i in missed:
+            self._count(self._object_context(truth.detections[i], frame_ctx, camera_m), "fn")
+        for j in false:
+            self._count(self._object_context(hyp.detections[j], frame_ctx, camera_m), "fp")
+
+    def _score_track_frame(self, truth: DetectionFrame, tracks: TrackFrame) -> None:
+        if self._mot is None:
+            self._mot = MotScorer(self.spec.track_gate_m)
+        finite = [d for d in truth.detections if all(math.isfinite(v) for v in d.position_m)]
+        t_ids = [d.instance_id for d in finite]
+        t_xy = np.array([d.position_m[:2] for d in finite]).reshape(-1, 2)
+        h_ids = [t.track_id for t in tracks.tracks]
+        h_xy = np.array([t.position_m[:2] for t in tracks.tracks]).reshape(-1, 2)
+        self._mot.update(t_ids, t_xy, h_ids, h_xy)
+        for name, band in self._track_frame_context(truth).items():
+            per = self._mot_by_context.setdefault(name, {})
+            if band not in per:
+                per[band] = MotScorer(self.spec.track_gate_m)
+            per[band].update(t_ids, t_xy, h_ids, h_xy)
+
+    # ---- reading -------------------------------------------------------------------------
+
+    def _cruise_speed_mps(self, now_s: float) -> float:
+        """90th percentile of the horizontal ground speed while airborne (the speed legs are flown at)."""
+        if self._takeoff_t_s is None or len(self._poses) < 3:
+            return math.nan
+        pts = np.array([(p.t_s, p.position_m[0], p.position_m[1]) for p in self._poses if p.t_s <= now_s])
+        pts = pts[pts[:, 0] >= self._takeoff_t_s]
+        if len(pts) < 3:
+            return math.nan
+        dt = np.diff(pts[:, 0])
+        ok = dt > 1e-6
+        speeds = np.hypot(np.diff(pts[:, 1]), np.diff(pts[:, 2]))[ok] / dt[ok]
+        return float(np.percentile(speeds, 90)) if speeds.size else math.nan
+
+    def _airborne_s(self, now_s: float) -> float:
+        """Time from the first pose 1 m above the ground to ``now_s`` (or the last record, if earlier)."""
+        if self._takeoff_t_s is None:
+            for pose, agl in zip(self._poses, self._agl, strict=True):
+                if agl >= 1.0:
+                    self._takeoff_t_s = pose.t_s
+                    break
+        if self._takeoff_t_s is None:
+            return 0.0
+        return max(0.0, min(now_s, self._last_t_s) - self._takeoff_t_s)
+
+    def sample(self, now_s: float) -> dict[str, float | str]:
+        """One time-series row at ``now_s`` (the CSV columns; NaN where unknown)."""
+        pose = self._poses[-1] if self._poses else None
+        bat = self._battery[-1] if self._battery else None
+        layers = self._layers
+        acc = self._map_accuracy
+        goal = self._goals[-1] if self._goals else None
+        ctrl = self._controller[-1] if self._controller else None
+        nan = math.nan
+        return {
+            "t_s": now_s,
+            "x_m": pose.position_m[0] if pose else nan,
+            "y_m": pose.position_m[1] if pose else nan,
+            "z_m": pose.position_m[2] if pose else nan,
+            "agl_m": self._agl[-1] if self._agl else nan,
+            "distance_m": self._distance_m,
+            "battery_pct": bat.remaining_pct if bat else nan,
+            "voltage_v": bat.voltage_v if bat else nan,
+            "battery_used_mah": battery_use(self._battery).used_mah if bat else nan,
+            "mapped_m2": self._mapped_m2,
+            "mapped_pct": 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else nan,
+            "observed_cells": float(np.count_nonzero(layers.layers["observed"] > 0.5))
+            if layers is not None and "observed" in layers.layers
+            else nan,
+            "mean_cell_age_s": mean_cell_age_s(layers, now_s) if layers is not None else nan,
+            "occupied_voxels": float(acc.n_map) if acc else nan,
+            "map_iou": acc.iou if acc else nan,
+            "map_precision": acc.precision if acc else nan,
+            "map_recall": acc.recall if acc else nan,
+            "goal_x_m": goal.goal_m[0] if goal else nan,
+            "goal_y_m": goal.goal_m[1] if goal else nan,
+            "controller_state": ctrl.state if ctrl else "",
+            "det_tp": float(self._det_total.tp),
+            "det_fp": float(self._det_total.fp),
+            "det_fn": float(self._det_total.fn),
+            "collisions": float(len(self._collisions)),
+        }
+
+    def summary(self, now_s: float, *, tracking: bool = True) -> dict[str, Any]:
+        """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer).
+
+        Args:
+            tracking: recompute the MOT metrics (py-motmetrics takes ~50 ms per accumulator on
+                a long run); ``False`` reuses the last computed ones.
+        """
+        spec = self.spec
+        times = np.array([p.t_s for p in self._poses])
+        alt = altitude_stats(times, np.array(self._agl), spec.altitude_floor_m)
+        bat = battery_use(self._battery)
+        airborne_s = self._airborne_s(now_s)
+        mapped_pct = 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
+        coverage_rate = self._mapped_m2 / airborne_s if airborne_s > 0 else math.nan
+        cov = coverage_efficiency(
+            self._mapped_m2,
+            airborne_s,
+            swath_m=self.swath_m_per_m * alt.mean_m,
+            along_m=self.swath_m_per_m * self.footprint_aspect * alt.mean_m,
+            speed_mps=self._cruise_speed_mps(now_s),
+        )
+        acc = self._map_accuracy
+        out: dict[str, Any] = {
+            "time": {
+                "start_s": self.start_t_s,
+                "end_s": now_s,
+                "duration_s": now_s - self.start_t_s if math.isfinite(self.start_t_s) else 0.0,
+                "airborne_s": airborne_s,
+                "complete_s": self._complete_t_s - self.start_t_s if math.isfinite(self._complete_t_s) else math.nan,
+                "complete_what": self._complete_what,
+            },
+            "coverage": {
+                "scene_area_m2": self.truth.area_m2,
+                "mapped_m2": self._mapped_m2,
+                "mapped_pct": mapped_pct,
+                "rate_m2_per_s": coverage_rate,
+                "cruise_speed_mps": cov.speed_mps,
+                "configured_cruise_speed_mps": self.cruise_speed_mps,
+                "swath_m": cov.swath_m,
+                "swath_limit_m2_per_s": cov.limit_m2_per_s,
+                "efficiency": cov.efficiency,
+            },
+            "map_accuracy": {
+                "t_s": self._map_accuracy_t_s,
+                "iou": acc.iou if acc else math.nan,
+                "precision": acc.precision if acc else math.nan,
+                "recall": acc.recall if acc else math.nan,
+                "recall_observed": acc.recall_observed if acc else math.nan,
+                "iou_observed": acc.iou_observed if acc else math.nan,
+                "occupied_voxels": acc.n_map if acc else math.nan,
+                "truth_voxels": acc.n_truth if acc else int(self.truth.surface_keys.size),
+            },
+            "flight": {
+                "distance_m": self._distance_m,
+                "agl_min_m": alt.min_m,
+                "agl_mean_m": alt.mean_m,
+                "time_below_floor_s": alt.time_below_floor_s,
+                "altitude_floor_m": spec.altitude_floor_m,
+                "goals": len({g.goal_m for g in self._goals}),
+            },
+            "battery": {
+                "used_mah": bat.used_mah,
+                "used_pct": bat.used_pct,
+                "start_pct": bat.start_pct,
+                "end_pct": bat.end_pct,
+                "min_voltage_v": bat.min_voltage_v,
+            },
+            "collisions": {
+                "count": len(self._collisions),
+                "events": [
+                    {"t_s": c.t_s, "instance_id": c.instance_id, "class": c.class_name, "speed_mps": c.speed_mps}
+                    for c in self._collisions
+                ],
+            },
+            "detection": self._detection_summary(),
+            "tracking": self._tracking_summary() if tracking or self._tracking_cache is None else self._tracking_cache,
+            "depth": self._depth_summary(),
+            "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
+        }
+        return out
+
+    def _bands(self, name: str) -> tuple[tuple[float, ...], str]:
+        spec = self.spec
+        edges = {
+            "clutter": spec.clutter_bands,
+            "view_angle": spec.view_angle_bands_deg,
+            "range": spec.range_bands_m,
+            "altitude": spec.altitude_bands_m,
+        }[name]
+        return edges, CONTEXTS[name]
+
+    def _detection_summary(self) -> dict[str, Any]:
+        def first(fd: _FirstDetection | None) -> dict[str, float]:
+            if fd is None:
+                return {"t_s": math.nan, "range_m": math.nan}
+            return {"t_s": fd.t_s - self.start_t_s, "range_m": fd.range_m}
+
+        by_context: dict[str, dict[str, dict[str, float]]] = {}
+        for name, per in self._det_by_context.items():
+            edges, unit = self._bands(name)
+            by_context[name] = {band_label(k, edges, unit): per[k].as_dict() for k in sorted(per)}
+        return {
+            "source": self.detection_source,
+            "frames": self._det_frames,
+            **self._det_total.as_dict(),
+            "first_detection": first(self._first_detection_any),
+            "person_first_in_view": first(self._first_person_seen),
+            "person_first_detected": first(self._first_person_detected),
+            "by_context": by_context,
+        }
+
+    def _tracking_summary(self) -> dict[str, Any]:
+        self._tracking_cache = self._tracking_summary_now()
+        return self._tracking_cache
+
+    def _tracking_summary_now(self) -> dict[str, Any]:
+        if self._mot is None:
+            return {"frames": 0}
+        by_context: dict[str, dict[str, dict[str, float]]] = {}
+        for name, per in self._mot_by_context.items():
+            edges, unit = self._bands(name)
+            by_context[name] = {band_label(k, edges, unit): per[k].result().as_dict() for k in sorted(per)}
+        return {**self._mot.result().as_dict(), "by_context": by_context}
+
+    def _depth_context(self, sample: DepthMetricsSample) -> dict[str, str]:
+        """Altitude, view angle (of the camera's axis) and clutter (objects in that camera's frame) of a depth frame."""
+        pose, agl = self._pose_at(sample.t_s)
+        pitch = self.camera_pitch_deg.get(sample.camera, 90.0)
+        angle = pose.camera_off_nadir_deg(pitch) if pose is not None else math.nan
+        key = (sample.camera, round(sample.t_s, _FRAME_KEY_DIGITS))
+        clutter = float(self._clutter[key]) if key in self._clutter else math.nan
+        out = {}
+        for name, value in (("altitude", agl), ("view_angle", angle), ("clutter", clutter)):
+            edges, unit = self._bands(name)
+            out[name] = band_label(band_of(value, edges), edges, unit)
+        return out
+
+    def _depth_summary(self) -> dict[str, Any]:
+        if not self._depth:
+            return {"frames": 0}
+        keys = sorted({k for s in self._depth for k in s.values})
+
+        def mean_of(samples: list[dict[str, float]]) -> dict[str, float]:
+            names = sorted({k for v in samples for k in v})
+            return {"frames": len(samples), **{k: _nanmean([v.get(k, math.nan) for v in samples]) for k in names}}
+
+        overall = {k: _nanmean([s.values.get(k, math.nan) for s in self._depth]) for k in keys}
+        grouped: dict[str, dict[str, list[dict[str, float]]]] = defaultdict(lambda: defaultdict(list))
+        for s in self._depth:
+            for context, label in s.ctx.items():
+                grouped[context][label].append(s.values)
+            for context, per in s.sample.breakdown.items():
+                for label, values in per.items():
+                    grouped[context][label].append(values)
+        return {
+            "frames": len(self._depth),
+            **overall,
+            "by_context": {c: {label: mean_of(v) for label, v in sorted(per.items())} for c, per in grouped.items()},
+        }
+
+    @property
+    def collisions(self) -> int:
+        return len(self._collisions)
+
+    @property
+    def mapped_pct(self) -> float:
+        return 100.0 * self._mapped_m2 / self.truth.area_m2 if self.truth.area_m2 else math.nan
+
+
+def _nanmean(values: list[float]) -> float:
+    arr = np.asarray(values, dtype=np.float64)
+    arr = arr[np.isfinite(arr)]
+    return float(arr.mean()) if arr.size else math.nan

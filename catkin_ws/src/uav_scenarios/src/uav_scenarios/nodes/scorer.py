@@ -1,0 +1,542 @@
+"""scorer: scores a scenario run live (or in a ``rosbag play`` replay) and writes its metrics.
+
+ROS interface:
+
+Subscribes:
+    ``/uav/ground_truth/odom`` (nav_msgs/Odometry), ``/uav/battery`` (sensor_msgs/BatteryState),
+    ``/map_server/layers`` (uav_msgs/GridLayers), ``/autonomy/features`` (uav_msgs/GridLayers),
+    ``/detections/ground_truth`` and the scenario's ``search.detection_topic`` (uav_msgs/DetectionArray),
+    ``/scenario/tracks`` (uav_msgs/TrackArray), ``/sim/collision`` (uav_msgs/Collision),
+    ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
+    ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
+    ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
+    camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times.
+Publishes:
+    ``/scenario/metrics`` (uav_msgs/RunMetrics) at ``scoring.metrics_rate_hz`` (sim time) and once at the end;
+    ``/scenario/snapshot/layers`` and ``/scenario/snapshot/features`` (uav_msgs/GridLayers, at most
+    ``scoring.snapshot_max_cells`` per side) and ``/scenario/snapshot/<cam>/{color,depth,instance}``
+    (sensor_msgs/Image) at ``scoring.snapshot_times_s`` and at the end, for the report.
+Calls:
+    ``/map_server/export_occupied`` (uav_msgs/ExportVoxels) every ``scoring.map_accuracy_period_s`` of
+    simulation time and at the end: the map's occupied voxels against the world's surface voxels.
+Parameters:
+    ``~scenario`` (str, required): the scenario file.
+    ``~run_dir`` (str, default ""): where ``metrics.json``, ``timeseries.csv`` and ``scenario.yaml`` are
+    written (atomically, every metrics period, so a crash keeps what was scored); "" writes nothing.
+    ``~world_cache_dir`` (str, ""): the bridge's world cache (the ground truth is the bridge's world).
+    ``~run/person`` (dict): the person of interest ``{name, instance_id, x_m, y_m}`` (scenario_params).
+    ``~run/camera_pitch_deg`` (dict): camera mount pitches (view-angle context of depth frames).
+    ``~cameras`` (list, default [nadir, forward]); ``~map_server`` (str, default ``/map_server``).
+    Any other private parameter stops the node (exit code 2, docs/architecture.md).
+
+Scoring itself is :class:`uav_scenarios.core.scoring.run.RunScorer`; the ground truth comes from
+:func:`uav_scenarios.shell.world_store.scene_truth` (surface voxels are computed in the background
+the first time, then cached on disk).
+"""
+
+from __future__ import annotations
+
+import csv
+import heapq
+import io
+import itertools
+import json
+import math
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rospy
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from rospy.numpy_msg import numpy_msg
+from sensor_msgs.msg import BatteryState, Image
+
+from uav_common.ros.node import run_node
+from uav_common.ros.params import node_params
+from uav_msgs.msg import (
+    Collision,
+    ControllerState,
+    DepthMetrics,
+    DetectionArray,
+    GoalReason,
+    GridLayers,
+    MapInsertStats,
+    RunMetrics,
+    ScenarioStatus,
+    TrackArray,
+)
+from uav_msgs.srv import ExportVoxels
+from uav_scenarios.core.config import Scenario, effective_yaml, load_scenario
+from uav_scenarios.core.scoring.metrics import voxel_accuracy, voxel_keys_from_indices
+from uav_scenarios.core.scoring.run import RunScorer, swath_width_m
+from uav_scenarios.core.scoring.types import SceneTruth
+from uav_scenarios.errors import ScenarioConfigError, ScenarioError
+from uav_scenarios.ros.messages import downsampled_layers_msg, json_safe, metrics_msg
+from uav_scenarios.ros.params import ScorerParams
+from uav_scenarios.ros.records import (
+    battery_from_msg,
+    collision_from_msg,
+    controller_from_msg,
+    depth_metrics_from_msg,
+    detections_from_msg,
+    goal_from_msg,
+    grid_from_msg,
+    pose_from_odometry,
+    tracks_from_msg,
+)
+from uav_scenarios.shell.versions import run_versions
+from uav_scenarios.shell.world_store import load_world, scene_truth, world_summary
+
+IMAGE_KINDS = {"color": "color/image_raw", "depth": "depth/image_raw", "instance": "instance/image_raw"}
+#: Subscriber queues: deep enough that a replay at full speed loses nothing.
+QUEUE = 2000
+#: Records are scored in stamp order once ROS time is this far past their stamp (late messages
+#: from other processes still count in order); the run's end cuts at the stop instant exactly.
+HOLD_S = 0.5
+#: Tracking metrics (py-motmetrics, slow on long runs) are recomputed this often (simulation s).
+TRACKING_PERIOD_S = 20.0
+
+
+def default_truth(scenario: Scenario) -> SceneTruth:
+    """The scene's bounds from the scenario (square of ``world.size_m`` around home), until the world is loaded."""
+    half = scenario.world.size_m / 2.0
+    return SceneTruth(bounds_m=(-half, -half, half, half))
+
+
+def write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+class ScorerNode:
+    def __init__(
+        self,
+        scenario: Scenario,
+        run_dir: Path | None,
+        cameras: list[str],
+        *,
+        person: dict[str, Any],
+        camera_pitch_deg: dict[str, float],
+        map_camera_hfov_deg: float = 90.0,
+        map_camera_aspect: float = 0.75,
+        world_cache_dir: Path | None,
+        map_server_ns: str = "/map_server",
+    ) -> None:
+        self.scenario = scenario
+        self.run_dir = run_dir
+        self.cameras = cameras
+        self.world_cache_dir = world_cache_dir
+        self.map_server_ns = map_server_ns.rstrip("/")
+        search = scenario.search
+        self.detection_topic = search.detection_topic if search else "/detections/ground_truth"
+        self.scorer = RunScorer(
+            spec=scenario.scoring,
+            truth=default_truth(scenario),
+            detection_source="ground_truth" if self.detection_topic == "/detections/ground_truth" else "detector",
+            person_id=int(person.get("instance_id", 0)),
+            tracked_camera=search.camera if search else "forward",
+            cruise_speed_mps=scenario.autonomy.cruise_speed_mps,
+            swath_m_per_m=swath_width_m(1.0, map_camera_hfov_deg),
+            footprint_aspect=map_camera_aspect,
+            camera_pitch_deg=dict(camera_pitch_deg) or {"nadir": 90.0, "forward": 25.0},
+        )
+        self.person = person
+        self.lock = threading.Lock()
+        self.start_s: float | None = None
+        self.stopped = False
+        self.finished = False
+        self._finish_lock = threading.Lock()
+        self._final = False
+        self.rows: list[dict[str, Any]] = []
+        self._csv_fields: list[str] = []  # columns and rows already in timeseries.csv
+        self._csv_rows = 0
+        self.snapshots_due = list(scenario.scoring.snapshot_times_s)
+        self.last_layers: GridLayers | None = None
+        self.last_features: GridLayers | None = None
+        self.image_subs: list[rospy.Subscriber] = []
+        self.pubs: dict[str, rospy.Publisher] = {}
+        self.metrics_pub: rospy.Publisher | None = None
+        self.world_info: dict[str, Any] = {}
+        self.truth_note = "loading the world"
+        self._accuracy_busy = threading.Lock()
+        self._pending: list[tuple[float, int, str, Any]] = []
+        self._seq = itertools.count()
+        self._pending_lock = threading.Lock()
+        self.end_s: float | None = None
+        self._finish_at_s: float | None = None
+        self._next_tracking_s = -math.inf
+        self._next_accuracy_s = -math.inf
+        self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
+        self.versions = run_versions()
+        self.map_input: dict[str, int] = {}  # the map server's cloud totals (its last ~insert_stats)
+
+    # ---- wiring --------------------------------------------------------------------------
+
+    def start(self) -> None:
+        self.metrics_pub = rospy.Publisher("/scenario/metrics", RunMetrics, queue_size=5, latch=True)
+        self.pubs["layers"] = rospy.Publisher("/scenario/snapshot/layers", GridLayers, queue_size=10, latch=True)
+        self.pubs["features"] = rospy.Publisher("/scenario/snapshot/features", GridLayers, queue_size=10, latch=True)
+        for cam in self.cameras:
+            for kind in IMAGE_KINDS:
+                self.pubs[f"{cam}/{kind}"] = rospy.Publisher(
+                    f"/scenario/snapshot/{cam}/{kind}", Image, queue_size=10, latch=True
+                )
+        sub = rospy.Subscriber
+        sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
+        sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
+        # numpy_msg: the float32[] of big grids deserialises into an array, not a Python tuple.
+        sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)
+        sub("/autonomy/features", numpy_msg(GridLayers), self.on_features, queue_size=2, buff_size=2**26)
+        sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=QUEUE)
+        if self.detection_topic != "/detections/ground_truth":
+            sub(self.detection_topic, DetectionArray, self.on_detector, queue_size=QUEUE)
+        sub("/scenario/tracks", TrackArray, self._feed(tracks_from_msg, "add_tracks"), queue_size=QUEUE)
+        sub("/sim/collision", Collision, self._feed(collision_from_msg, "add_collision"), queue_size=QUEUE)
+        sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=QUEUE)
+        sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=QUEUE)
+        sub(
+            "/depth_evaluator/metrics",
+            DepthMetrics,
+            self._feed(depth_metrics_from_msg, "add_depth_metrics"),
+            queue_size=QUEUE,
+        )
+        sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=QUEUE)
+        sub(f"{self.map_server_ns}/insert_stats", MapInsertStats, self.on_insert_stats, queue_size=QUEUE)
+        sub("/clock", Clock, self.on_clock, queue_size=10)
+        rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
+        rospy.on_shutdown(self.finish)
+        threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
+        if self.run_dir is not None and not (self.run_dir / "scenario.yaml").exists():
+            write_atomic(self.run_dir / "scenario.yaml", effective_yaml(self.scenario))
+
+    def _load_truth(self) -> None:
+        """World -> bounds, ground, objects at once; surface voxels later (slow the first time)."""
+        t0 = time.monotonic()
+        try:
+            world = load_world(self.scenario, self.world_cache_dir)
+            moved = {}
+            if self.person.get("instance_id"):
+                moved[int(self.person["instance_id"])] = (float(self.person["x_m"]), float(self.person["y_m"]))
+            quick = scene_truth(world, resolution_m=None, cache_dir=self.world_cache_dir, moved=moved)
+            with self.lock:
+                self.scorer.truth = quick
+            self.world_info = world_summary(world, self.world_cache_dir)
+            self.truth_note = "computing surface voxels"
+            full = scene_truth(
+                world, resolution_m=self.scenario.map.resolution_m, cache_dir=self.world_cache_dir, moved=moved
+            )
+            with self.lock:
+                self.scorer.truth = full
+            self.truth_note = ""
+            rospy.loginfo(
+                f"scorer: ground truth of world {world.config.name} ({world.hash[:12]}): "
+                f"{full.surface_keys.size} surface voxels at {self.scenario.map.resolution_m} m "
+                f"in {time.monotonic() - t0:.1f} s"
+            )
+        except ScenarioError as err:
+            self.truth_note = f"no ground truth: {err}"
+            rospy.logerr(f"scorer: {self.truth_note}; % mapped uses world.size_m, no map IoU")
+
+    def _feed(self, convert: Any, method: str) -> Any:
+        def callback(msg: Any) -> None:
+            record = convert(msg)
+            self._push(record.t_s, method, record)
+
+        return callback
+
+    def _push(self, t_s: float, method: str, record: Any) -> None:
+        with self._pending_lock:
+            if self.end_s is None or t_s <= self.end_s:
+                heapq.heappush(self._pending, (t_s, next(self._seq), method, record))
+
+    def _flush_scored(self, upto_s: float) -> None:
+        """Score held records up to ``upto_s``, once the run's start is known (earlier records are dropped:
+        what happens before the mission starts is not part of the run, and a replay may not have it)."""
+        if self.start_s is None:
+            return
+        self._flush(upto_s)
+
+    def _flush(self, upto_s: float) -> None:
+        """Score every held record stamped up to ``upto_s``, in stamp order (arrival order on ties)."""
+        batch = []
+        with self._pending_lock:
+            while self._pending and self._pending[0][0] <= upto_s:
+                batch.append(heapq.heappop(self._pending))
+        if not batch:
+            return
+        with self.lock:
+            for t_s, _seq, method, record in batch:
+                if (self.end_s is not None and t_s > self.end_s) or (self.start_s is not None and t_s < self.start_s):
+                    continue
+                try:
+                    if method == "truth_detections":
+                        self.scorer.add_detections(record, is_truth=True)
+                    elif method == "detector":
+                        self.scorer.add_detections(record, is_truth=False)
+                    else:
+                        getattr(self.scorer, method)(record)
+                except ScenarioError as err:
+                    rospy.logwarn_throttle(10.0, f"scorer: record at {t_s:.2f} s rejected: {err}")
+
+    # ---- callbacks -----------------------------------------------------------------------
+
+    def on_layers(self, msg: GridLayers) -> None:
+        if self.end_s is None or msg.header.stamp.to_sec() <= self.end_s:
+            self.last_layers = msg
+        self._feed(grid_from_msg, "add_layers")(msg)
+
+    def on_features(self, msg: GridLayers) -> None:
+        if self.end_s is None or msg.header.stamp.to_sec() <= self.end_s:
+            self.last_features = msg
+
+    def on_truth_detections(self, msg: DetectionArray) -> None:
+        frame = detections_from_msg(msg)
+        self._push(frame.t_s, "truth_detections", frame)
+
+    def on_detector(self, msg: DetectionArray) -> None:
+        frame = detections_from_msg(msg)
+        self._push(frame.t_s, "detector", frame)
+
+    def on_insert_stats(self, msg: MapInsertStats) -> None:
+        """Totals since the map server started: how many clouds reached the map (dropped ones cost coverage)."""
+        dropped = {
+            "queue_full": int(msg.clouds_dropped_queue_full),
+            "no_transform": int(msg.clouds_dropped_no_transform),
+            "empty": int(msg.clouds_dropped_empty),
+            "bad_layout": int(msg.clouds_dropped_bad_layout),
+            "too_large": int(msg.clouds_dropped_too_large),
+            "unsynchronized": int(msg.clouds_dropped_unsynchronized),
+        }
+        with self.lock:
+            if int(msg.clouds_inserted) + sum(dropped.values()) >= self.map_input.get("clouds_received", 0):
+                self.map_input = {
+                    "clouds_received": int(msg.clouds_inserted) + sum(dropped.values()),
+                    "clouds_inserted": int(msg.clouds_inserted),
+                    **{f"dropped_{k}": v for k, v in dropped.items()},
+                }
+
+    def on_controller(self, msg: ControllerState) -> None:
+        sample = controller_from_msg(msg, rospy.get_time())
+        self._push(sample.t_s, "add_controller", sample)
+
+    def on_status(self, msg: ScenarioStatus) -> None:
+        t = msg.header.stamp.to_sec()
+        with self.lock:
+            if self.start_s is None:
+                self.start_s = t - msg.sim_time_s
+                self.scorer.start_t_s = self.start_s  # the run starts with the mission, not the first record
+            if math.isfinite(msg.complete_time_s):
+                self.scorer.mark_complete(
+                    self.start_s + msg.complete_time_s, "person confirmed" if msg.target_found else "mission complete"
+                )
+            first_stop = msg.stop and not self.stopped
+            if first_stop:
+                self.stopped = True
+                self.scorer.add_event(t, f"stop: {msg.stop_reason}")
+        if first_stop:
+            with self._pending_lock:
+                self.end_s = t
+            # The final metrics are taken at the stop instant (not whenever a callback runs), so a live run
+            # and its replay end on the same sample; records stamped up to the stop may still be on their
+            # way, so the summary is made at the first /clock 2 x HOLD_S later (on_clock), and the map is
+            # exported then: in a deterministic run the simulation waits for that.
+            self._finish_at_s = t + 2 * HOLD_S
+
+    def on_clock(self, msg: Clock) -> None:
+        at = self._finish_at_s
+        if at is None or self.finished or msg.clock.to_sec() < at:
+            return
+        assert self.end_s is not None
+        self.finish(at_s=self.end_s)
+
+    def on_tick(self, _event: rospy.timer.TimerEvent) -> None:
+        now = rospy.get_time()
+        if now <= 0 or self.finished or self._finish_lock.locked() or self.end_s is not None:
+            return
+        if now >= self._next_accuracy_s:
+            # In this callback, not in a thread: the value lands in the same row of every run (and in a
+            # deterministic run the simulation waits for the export).
+            self._next_accuracy_s = now + self.scenario.scoring.map_accuracy_period_s
+            self._map_accuracy(now, wait=True)
+        scored_to = now - HOLD_S
+        self._flush_scored(scored_to)
+        tracking = now >= self._next_tracking_s
+        if tracking:
+            self._next_tracking_s = now + TRACKING_PERIOD_S
+        self._emit(scored_to, tracking=tracking)
+        elapsed = now - self.start_s if self.start_s is not None else None
+        if elapsed is None or not self.snapshots_due:
+            return
+        if elapsed >= self.snapshots_due[0] - 1.0 / self.scenario.scoring.metrics_rate_hz and not self.image_subs:
+            self._grab_images()
+        if elapsed >= self.snapshots_due[0]:
+            self.snapshots_due.pop(0)
+            self._publish_grids()
+
+    # ---- map accuracy ----------------------------------------------------------------------
+
+    def _map_accuracy(self, t_s: float, *, wait: bool = False) -> None:
+        """Export the map's occupied voxels and compare them with the truth (off every lock but our own)."""
+        if not self._accuracy_busy.acquire(blocking=wait):
+            return  # the previous export is still running
+        try:
+            truth = self.scorer.truth  # one truth for the keys and their columns (it is replaced once loaded)
+            truth_keys = truth.surface_keys
+            if truth_keys.size == 0:
+                return
+            service = f"{self.map_server_ns}/export_occupied"
+            path = self._export_dir / "occupied.npy"
+            try:
+                rospy.wait_for_service(service, timeout=1.0)
+                resp = rospy.ServiceProxy(service, ExportVoxels)(str(path), self.scenario.map.resolution_m)
+            except (rospy.ROSException, rospy.ServiceException) as err:
+                rospy.logwarn_throttle(30.0, f"scorer: {service} unavailable ({err}); no map IoU yet")
+                return
+            if not resp.success:
+                rospy.logwarn_throttle(30.0, f"scorer: {service} failed: {resp.message}")
+                return
+            try:
+                cells = np.load(path)
+            except (OSError, ValueError) as err:
+                rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
+                return
+            accuracy = voxel_accuracy(voxel_keys_from_indices(cells.reshape(-1, 3)), truth_keys, truth.surface_columns)
+            with self.lock:
+                if not self.finished or wait:
+                    self.scorer.set_map_accuracy(t_s, accuracy)
+        finally:
+            self._accuracy_busy.release()
+
+    # ---- output --------------------------------------------------------------------------
+
+    def _summary(self, now: float, *, tracking: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+        with self.lock:
+            row = self.scorer.sample(now)
+            summary = self.scorer.summary(now, tracking=tracking)
+        summary["scenario"] = self.scenario.name
+        summary["stop_reason"] = next(
+            (e["what"][6:] for e in reversed(summary["events"]) if e["what"].startswith("stop: ")), ""
+        )
+        summary["world"] = self.world_info
+        with self.lock:
+            summary["map_input"] = dict(self.map_input)
+        if self.person:
+            summary["person"] = dict(self.person)
+        if self.truth_note:
+            summary["notes"] = [self.truth_note]
+        summary["versions"] = self.versions
+        summary["final"] = self._final
+        return row, summary
+
+    def _emit(self, now: float, *, tracking: bool = True) -> None:
+        row, summary = self._summary(now, tracking=tracking)
+        self.rows.append(row)
+        if self.metrics_pub is not None:
+            self.metrics_pub.publish(metrics_msg(rospy.Time.from_sec(now), row, summary))
+        if self.run_dir is not None:
+            self._write(summary)
+
+    def _write(self, summary: dict[str, Any]) -> None:
+        assert self.run_dir is not None
+        try:
+            write_atomic(self.run_dir / "metrics.json", json.dumps(json_safe(summary), indent=2))
+            self._write_rows()
+        except OSError as err:
+            rospy.logerr_throttle(30.0, f"scorer: cannot write metrics to {self.run_dir}: {err}")
+
+    def _write_rows(self) -> None:
+        """The time series: new rows are appended (rewriting it every tick grew with the run); it is written
+        whole, atomically, when it starts or its columns change."""
+        assert self.run_dir is not None
+        path = self.run_dir / "timeseries.csv"
+        fields = list(self.rows[0])
+        whole = self._csv_fields != fields or any(list(r) != fields for r in self.rows[self._csv_rows :])
+        if whole:
+            tmp = path.with_suffix(".csv.tmp")
+            with tmp.open("w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+                writer.writeheader()
+                writer.writerows(self.rows)
+            os.replace(tmp, path)
+        else:
+            buf = io.StringIO()  # one write() per tick: a reader sees whole rows
+            csv.DictWriter(buf, fieldnames=fields).writerows(self.rows[self._csv_rows :])
+            with path.open("a", newline="") as fh:
+                fh.write(buf.getvalue())
+        self._csv_fields = fields
+        self._csv_rows = len(self.rows)
+
+    def _grab_images(self) -> None:
+        for cam in self.cameras:
+            for kind, suffix in IMAGE_KINDS.items():
+                topic = f"/cameras/{cam}/{suffix}"
+                holder: dict[str, rospy.Subscriber] = {}
+
+                def once(msg: Image, key: str = f"{cam}/{kind}", holder: dict[str, rospy.Subscriber] = holder) -> None:
+                    sub = holder.pop("sub", None)
+                    if sub is None:
+                        return
+                    sub.unregister()
+                    self.pubs[key].publish(msg)
+
+                holder["sub"] = rospy.Subscriber(topic, Image, once, queue_size=1, buff_size=2**24)
+                self.image_subs.append(holder["sub"])
+
+    def _publish_grids(self) -> None:
+        self.image_subs = []
+        max_cells = self.scenario.scoring.snapshot_max_cells
+        if self.last_layers is not None:
+            self.pubs["layers"].publish(downsampled_layers_msg(self.last_layers, max_cells))
+        if self.last_features is not None:
+            self.pubs["features"].publish(downsampled_layers_msg(self.last_features, max_cells))
+
+    def finish(self, at_s: float | None = None) -> None:
+        """Final map accuracy, metrics (``"final": true``) and snapshots, once (stop status or shutdown)."""
+        with self._finish_lock:
+            if self.finished:
+                return
+            now = at_s if at_s is not None else (self.end_s if self.end_s is not None else rospy.get_time())
+            self._flush_scored(now)
+            if now > 0 and not rospy.is_shutdown():
+                self._map_accuracy(now, wait=True)
+            if now > 0:
+                self._publish_grids()
+                self._final = True
+                self._emit(now)
+            self.finished = True
+
+
+def main() -> None:
+    run_node("scorer", _run, errors=(ScenarioError,))
+
+
+def _run() -> None:
+    params = node_params(ScorerParams, "scorer")
+    scenario = load_scenario(Path(params.scenario))
+    run_dir = Path(params.run_dir) if params.run_dir else None
+    if run_dir is not None:
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            msg = f"~run_dir {run_dir}: cannot create it: {err.strerror}"
+            raise ScenarioConfigError(msg) from err
+    run = params.run
+    node = ScorerNode(
+        scenario,
+        run_dir,
+        list(params.cameras),
+        person=dict(run.person),
+        camera_pitch_deg=dict(run.camera_pitch_deg),
+        map_camera_hfov_deg=run.map_camera_hfov_deg,
+        map_camera_aspect=run.map_camera_aspect,
+        world_cache_dir=Path(params.world_cache_dir).expanduser() if params.world_cache_dir else None,
+        map_server_ns=params.map_server,
+    )
+    node.start()
+    rospy.spin()

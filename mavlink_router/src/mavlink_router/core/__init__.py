@@ -1,0 +1,1 @@
+"""The router's functional core: frames, routing, dedup, signing, configuration and the engine (pure)."""

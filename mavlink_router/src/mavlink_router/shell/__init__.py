@@ -1,0 +1,1 @@
+"""The router's shells: pymavlink's message table, sockets and serial endpoints, the main loop, the tlog."""

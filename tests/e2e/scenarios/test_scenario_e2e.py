@@ -1,0 +1,231 @@
+"""Scenario runs end to end: uav-run (SITL, router, bridge, map server, autonomy, scorer, rosbag) in the
+small scenario world, then the report, a replay without the simulator, and determinism.
+
+Every run gets a private ROS master and free ports (uav-run allocates them), writes into
+``artifacts/scenario_e2e/`` and is stopped by uav-run itself (SIGINT to roslaunch, then escalation);
+a test that fails still leaves the run folder (logs, metrics, bag) behind to look at.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from helpers.procs import REPO, Proc, artifacts_dir, free_port
+
+from uav_scenarios.report.data import read_run_bag
+
+pytestmark = pytest.mark.slow
+HERE = Path(__file__).resolve().parent
+FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detections")
+
+
+def runs_dir() -> Path:
+    return artifacts_dir() / "scenario_e2e"
+
+
+def uav_run(scenario: Path, name: str, *extra: str, timeout_s: float = 240.0) -> tuple[Path, str]:
+    """Run ``uav-run`` to the end; returns the run folder and uav-run's output."""
+    run_dir = runs_dir() / name
+    shutil.rmtree(run_dir, ignore_errors=True)
+    proc = Proc(f"uav_run_{name}", ["uav-run", str(scenario), "--run-dir", str(run_dir), "--quiet", *extra])
+    try:
+        rc = proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.signal(signal.SIGINT)  # uav-run stops its run and still builds the report
+        proc.wait(60)
+        pytest.fail(f"uav-run {name} took longer than {timeout_s} s:\n{proc.tail()}")
+    finally:
+        proc.stop()
+    out = proc.log_text()
+    assert rc == 0, f"uav-run {name} exited {rc}:\n{out[-3000:]}"
+    return run_dir, out
+
+
+def metrics(run_dir: Path) -> dict[str, Any]:
+    return json.loads((run_dir / "metrics.json").read_text())
+
+
+def flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(flat(value, f"{prefix}{key}."))
+        elif not isinstance(value, list):
+            out[prefix + key] = value
+    return out
+
+
+def test_sar_finds_the_person_and_the_report_has_every_figure() -> None:
+    run_dir, out = uav_run(HERE / "small_sar.yaml", "sar")
+    m = metrics(run_dir)
+    assert m["final"]
+    assert m["stop_reason"] == "target_found", out
+    complete = m["time"]["complete_s"]
+    assert complete is not None
+    assert 0 < complete < 120
+    det = m["detection"]
+    assert det["person_first_detected"]["t_s"] <= complete
+    assert det["person_first_detected"]["range_m"] <= 100.5  # the forward camera's 100 m rule
+    # the person confirmed is the one the scenario placed, and the drone then held and stared
+    status_target = read_run_bag(run_dir / "run.bag").target_position_m
+    assert status_target is not None
+    assert math.dist(status_target, (m["person"]["x_m"], m["person"]["y_m"])) < 3.0
+    events = [e["what"] for e in m["events"]]
+    assert "complete: person confirmed" in events
+    assert "controller HOLD" in events
+    assert m["collisions"]["count"] == 0
+    for section in ("coverage", "map_accuracy", "flight", "battery", "detection", "tracking"):
+        assert section in m
+    assert m["map_accuracy"]["precision"] > 0.8
+    assert m["tracking"]["mota"] is not None
+    assert m["detection"]["by_context"]["range"], "no range breakdown"
+    # the time series and the report
+    rows = list(csv.DictReader((run_dir / "timeseries.csv").open()))
+    assert len(rows) > 10
+    html = (run_dir / "report.html").read_text()
+    for fig in FIGURES:
+        section = re.search(rf'<section id="{fig}">(.*?)</section>', html, re.S)
+        assert section is not None, f"no section {fig}"
+        assert "data:image/png;base64," in section.group(1), f"figure {fig} has no image"
+        assert (run_dir / "figures" / f"{fig}.png").stat().st_size > 10_000
+    assert "Scenario configuration" in html
+    assert "small_sar" in html
+    # uav-report regenerates it offline from the bag alone
+    offline = run_dir / "offline"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "ROS_PACKAGE_PATH", "ROS_MASTER_URI")}
+    rep = subprocess.run(
+        [str(REPO / ".venv/bin/python"), str(REPO / "bin/uav-report"), str(run_dir / "run.bag"), "--out", str(offline)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=False,
+    )
+    assert rep.returncode == 0, rep.stderr
+    assert (offline / "report.html").is_file()
+    assert "figures without data" not in rep.stdout
+
+
+def replay(run_dir: Path, out_dir: Path) -> None:
+    port = free_port()
+    env = {"ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1"}
+    argv = [
+        "roslaunch",
+        "-p",
+        str(port),
+        "uav_scenarios",
+        "replay.launch",
+        f"run_dir:={run_dir}",
+        f"out_dir:={out_dir}",
+    ]
+    proc = Proc("scenario_replay", argv, env=env)
+    try:
+        proc.wait(240)
+    finally:
+        proc.stop()
+    assert (out_dir / "metrics.json").is_file(), proc.tail()
+
+
+def map_input_stamps(bag_path: Path) -> dict[str, list[int]]:
+    """Header stamps (ns) of the nadir camera's depth, colour and camera_info messages in a bag."""
+    import rosbag  # noqa: PLC0415
+
+    topics = [f"/cameras/nadir/{t}" for t in ("depth/image_raw", "color/image_raw", "depth/camera_info")]
+    stamps: dict[str, list[int]] = {t: [] for t in topics}
+    with rosbag.Bag(str(bag_path)) as bag:
+        for topic, msg, _t in bag.read_messages(topics=topics):
+            stamps[topic].append(msg.header.stamp.to_nsec())
+    return {t: sorted(v) for t, v in stamps.items()}
+
+
+def test_replay_reproduces_the_live_metrics() -> None:
+    run_dir, _ = uav_run(HERE / "small_loiter.yaml", "replay_live", "--time-limit", "25")
+    # the bag holds every frame of the map camera (10 Hz): all three topics, one per 0.1 s, stamps exact
+    stamps = map_input_stamps(run_dir / "run.bag")
+    assert len({tuple(v) for v in stamps.values()}) == 1, {k: len(v) for k, v in stamps.items()}
+    frames_ns = next(iter(stamps.values()))
+    assert len(frames_ns) > 200
+    assert {b - a for a, b in itertools.pairwise(frames_ns)} == {100_000_000}
+    out_dir = run_dir / "replay"
+    replay(run_dir, out_dir)
+    live, again = flat(metrics(run_dir)), flat(metrics(out_dir))
+    assert again["final"]
+    exact = [
+        k
+        for k in live
+        if k.split(".")[0] in ("time", "flight", "battery", "collisions", "detection", "tracking")
+        and ".by_context." not in k
+    ]
+    assert len(exact) > 30
+    differ = {k: (live[k], again.get(k)) for k in exact if live[k] != again.get(k)}
+    assert not differ, f"the replay scored differently: {differ}"
+    # the map is rebuilt by the map server from the recorded clouds (the live run is deterministic, so its
+    # map server inserted every cloud too); insertion threads and the map export's timing allow a little slack
+    for key in ("coverage.mapped_pct", "map_accuracy.iou", "map_accuracy.precision", "map_accuracy.recall"):
+        assert again[key] == pytest.approx(live[key], rel=0.05), key
+    assert live["map_accuracy.precision"] > 0.9
+
+
+def test_deterministic_runs_are_identical() -> None:
+    a, _ = uav_run(HERE / "small_lawnmower.yaml", "det_a", "--name", "det")
+    b, _ = uav_run(HERE / "small_lawnmower.yaml", "det_b", "--name", "det")
+    ma, mb = flat(metrics(a)), flat(metrics(b))
+    differ = {k: (ma[k], mb.get(k)) for k in ma if not k.startswith("versions.") and ma[k] != mb.get(k)}
+    assert not differ, f"metrics differ: {differ}"
+    ra, rb = read_run_bag(a / "run.bag"), read_run_bag(b / "run.bag")
+    assert ra.trajectory.shape[0] > 100
+    stamps_a = {round(t + ra.start_stamp_s, 3): tuple(xyz) for t, *xyz in ra.trajectory}
+    stamps_b = {round(t + rb.start_stamp_s, 3): tuple(xyz) for t, *xyz in rb.trajectory}
+    common = sorted(set(stamps_a) & set(stamps_b))
+    assert len(common) > 0.9 * len(stamps_a)
+    assert [stamps_a[t] for t in common] == [stamps_b[t] for t in common]  # bit for bit
+    rows_a = (a / "timeseries.csv").read_text()
+    rows_b = (b / "timeseries.csv").read_text()
+    assert rows_a == rows_b
+
+
+def test_bad_inputs_say_what_to_do(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("name: x\nmission: loiter\nstop: {time_limt_s: 3}\n")
+    res = subprocess.run(["uav-run", str(broken)], capture_output=True, text=True, timeout=60, check=False)
+    assert res.returncode == 2
+    assert "time_limt_s" in res.stderr
+    nowhere = tmp_path / "nowhere.yaml"
+    nowhere.write_text("name: x\nmission: loiter\nworld: {config: no_such_world.yaml}\n")
+    t0 = time.monotonic()
+    res = subprocess.run(
+        ["uav-run", str(nowhere), "--runs-dir", str(tmp_path / "runs")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert res.returncode != 0
+    assert "no_such_world.yaml" in res.stdout + res.stderr
+    assert time.monotonic() - t0 < 90
+    import rosbag  # noqa: PLC0415
+    from nav_msgs.msg import Odometry  # noqa: PLC0415
+
+    whole = tmp_path / "whole.bag"
+    with rosbag.Bag(str(whole), "w") as bag:
+        for k in range(2000):
+            msg = Odometry()
+            msg.header.stamp.secs = k
+            bag.write("/uav/ground_truth/odom", msg, msg.header.stamp)
+    truncated = tmp_path / "cut.bag"
+    truncated.write_bytes(whole.read_bytes()[: whole.stat().st_size // 3])
+    res = subprocess.run(["uav-report", str(truncated)], capture_output=True, text=True, timeout=60, check=False)
+    assert res.returncode == 1
+    assert "reindex" in res.stderr

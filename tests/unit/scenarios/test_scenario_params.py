@@ -1,0 +1,144 @@
+"""Scenario -> component settings, validated by the components' own strict loaders."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from helpers.paths import REPO
+
+from uav_autonomy.core.controller import ControllerConfig
+from uav_autonomy.core.features import FeatureConfig
+from uav_autonomy.core.mcdm import GoalSelectorConfig
+from uav_autonomy.core.planning import PlannerConfig
+from uav_common.config import load_yaml_mapping
+from uav_common.ros.params import load_section
+from uav_scenarios.core.config import DepthSource, TimeMode, TimeSpec, load_scenario
+from uav_scenarios.core.params import (
+    RunContext,
+    bridge_cameras,
+    lockstep_steps,
+    node_params,
+    scripted_request,
+    sitl_capacity_mah,
+)
+from uav_scenarios.errors import ScenarioError
+
+SCENARIOS = sorted((REPO / "config" / "scenarios").glob("*.yaml"))
+AUTONOMY = REPO / "config" / "autonomy.yaml"
+SECTIONS = {
+    "goal_selector": (GoalSelectorConfig, "goal_selector"),
+    "feature_evaluator": (FeatureConfig, "features"),
+    "path_planner": (PlannerConfig, "planner"),
+    "waypoint_controller": (ControllerConfig, "controller"),
+}
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
+@pytest.mark.parametrize("node", sorted(SECTIONS))
+def test_autonomy_nodes_accept_every_scenario(path: Path, node: str) -> None:
+    cls, section = SECTIONS[node]
+    config = load_section(cls, AUTONOMY, section, node_params(load_scenario(path), node))
+    assert config is not None
+
+
+def test_sar_weights_and_target_reach_the_goal_selector() -> None:
+    sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    params = node_params(sar, "goal_selector")
+    assert params["weights"] == {"age": 0.0, "frontier": 1.0, "target": 2.0, "drone": 1.0, "origin": 0.0}
+    assert params["target_xy_m"] == [[0.0, -400.0]]
+    assert node_params(sar, "waypoint_controller")["takeoff_height_m"] == sar.autonomy.takeoff_alt_m
+
+
+def test_scripted_requests() -> None:
+    mower_scenario = load_scenario(REPO / "config/scenarios/sar_lawnmower.yaml")
+    assert mower_scenario.search is not None
+    assert mower_scenario.search.scripted_alt_reference == "terrain"
+    with pytest.raises(ScenarioError, match="needs the world's terrain"):
+        scripted_request(mower_scenario)
+    # Above home: the controller builds the pattern itself.
+    home = replace(mower_scenario, search=replace(mower_scenario.search, scripted_alt_reference="home"))
+    mower = scripted_request(home)
+    assert mower["pattern"] == "lawnmower"
+    assert len(mower["points"]) == 4
+    # Above the terrain: explicit waypoints, 40 m over a ground that rises 1 m per 10 m eastwards.
+    slope = lambda x, y: 0.1 * (np.asarray(x) + 250.0)  # noqa: E731
+    planned = scripted_request(mower_scenario, slope)
+    assert planned["pattern"] == "waypoints"
+    pts = np.asarray(planned["points"])
+    assert len(pts) > 20
+    assert np.all(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1) <= 25.0 + 1e-9)
+    assert pts[:, 2].min() == pytest.approx(40.0, abs=3.0)
+    assert pts[:, 2].max() == pytest.approx(90.0, abs=3.0)
+    assert np.all(pts[:, 2] >= slope(pts[:, 0], pts[:, 1]) + 40.0 - 1e-9)
+    square_scenario = load_scenario(REPO / "config/scenarios/sar_expanding_square.yaml")
+    assert square_scenario.search is not None
+    square = scripted_request(
+        replace(square_scenario, search=replace(square_scenario.search, scripted_alt_reference="home"))
+    )
+    assert square["pattern"] == "expanding_square"
+    assert square["points"] == [(0.0, -400.0, 0.0)]
+    assert square["max_radius_m"] == pytest.approx((250.0**2 + 350.0**2) ** 0.5)
+    assert scripted_request(square_scenario, slope)["points"][0][:2] == (0.0, -400.0)
+    with pytest.raises(ScenarioError, match="not a scripted baseline"):
+        scripted_request(load_scenario(REPO / "config/scenarios/loiter.yaml"))
+
+
+def test_unknown_node_is_an_error() -> None:
+    with pytest.raises(ScenarioError, match="no settings for node 'nope'"):
+        node_params(load_scenario(REPO / "config/scenarios/loiter.yaml"), "nope")
+
+
+def test_bridge_map_server_and_lockstep_settings(tmp_path: Path) -> None:
+    sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    person = {"name": "person_0000", "instance_id": 77, "x_m": 10.0, "y_m": -200.0}
+    ctx = RunContext(run_dir=str(tmp_path), world_yaml="/w.yaml", person=person)
+    bridge = node_params(sar, "sim_bridge", ctx)
+    assert bridge["object_poses"] == {"person_0000": [10.0, -200.0, 0.0]}
+    assert bridge["detections"]["max_range_m"] == 100.0
+    assert bridge["lockstep"] == {"role": "off"}
+    assert bridge["world"] == "/w.yaml"
+    lock = replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.1))
+    assert node_params(lock, "sim_bridge", ctx)["lockstep"] == {"role": "master", "steps_per_grant": 25}
+    assert lockstep_steps(replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.02))) == 5
+    with pytest.raises(ScenarioError, match="whole number"):
+        lockstep_steps(replace(sar, time=TimeSpec(mode=TimeMode.LOCKSTEP, step_s=0.003)))
+    assert node_params(sar, "mission_manager", ctx) == {"person": person}
+    base = load_yaml_mapping(REPO / "config" / "map_server.yaml")
+    ms = node_params(sar, "map_server", replace(ctx, map_server_base=base))
+    assert set(base) <= set(ms)  # the launch file sets this as the node's whole namespace
+    assert ms["autosave"]["path"] == f"{tmp_path}/map_autosave.ot"
+    assert ms["autosave"]["interval_s"] == base["autosave"]["interval_s"]
+    assert ms["resolution"] == sar.map.resolution_m
+    assert ms["input"] == "rgbd"  # ground-truth depth: the map camera's images, back-projected by the node
+    estimated = replace(sar, depth_source=DepthSource.ESTIMATED)
+    assert node_params(estimated, "map_server", replace(ctx, map_server_base=base))["input"] == "cloud"
+    cams = bridge_cameras(load_yaml_mapping(REPO / "config" / "sim_bridge.yaml"), sar)
+    assert cams["nadir"]["pitch_deg"] == 90.0
+    assert cams["forward"]["pitch_deg"] == 25.0
+    assert cams["nadir"]["aspect"] == pytest.approx(0.75)
+    assert (
+        sitl_capacity_mah(sar, REPO / "config" / "sitl.yaml")
+        == load_yaml_mapping(REPO / "config" / "sitl.yaml")["battery"]["capacity_mah"]
+    )
+    assert sitl_capacity_mah(sar, tmp_path / "missing.yaml") == 4000.0
+
+
+def test_scenario_params_cli_prints_yaml_or_fails(tmp_path: Path) -> None:
+    cmd = [sys.executable, str(REPO / "catkin_ws/src/uav_scenarios/nodes/scenario_params")]
+    ok = subprocess.run(
+        [*cmd, str(REPO / "config/scenarios/loiter.yaml"), "goal_selector", "__name:=x"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert yaml.safe_load(ok.stdout)["weights"]["frontier"] == 1.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nmission: loiter\nstop: {time_limt_s: 3}\n")
+    fail = subprocess.run([*cmd, str(bad), "goal_selector"], capture_output=True, text=True, check=False)
+    assert fail.returncode == 2  # a configuration error (docs/architecture.md, exit codes)
+    assert "time_limt_s" in fail.stderr

@@ -1,0 +1,93 @@
+"""uav_common.shell.processes: stopping a process group leaves nothing behind (uav-run and the tests use it)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from uav_common.errors import ResourceError
+from uav_common.shell.processes import LoggedProcess, free_port, free_udp_port, stop_process_group, wait_for_port
+
+# A leader that exits on SIGINT (as roslaunch does) and a child in its group that ignores SIGINT (as
+# `rosbag play --wait-for-subscribers` does while it waits).
+LEADER = """
+import signal, subprocess, sys, time
+child = subprocess.Popen(["bash", "-c", "trap '' INT; exec sleep 300"])
+print(child.pid, flush=True)
+signal.signal(signal.SIGINT, lambda *_: sys.exit(0))
+time.sleep(300)
+"""
+
+
+def _gone(pid: int, timeout_s: float = 5.0) -> bool:
+    """The process has exited (a zombie waiting for its new parent to reap it counts as exited)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return True
+        if state == "Z":
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_stop_kills_what_ignores_sigint_after_its_leader_exits() -> None:
+    leader = subprocess.Popen([sys.executable, "-c", LEADER], stdout=subprocess.PIPE, start_new_session=True, text=True)
+    assert leader.stdout is not None
+    child = int(leader.stdout.readline())
+    time.sleep(0.2)  # the child's bash has set its trap and exec'd sleep
+    t0 = time.monotonic()
+    stop_process_group(leader, int_timeout_s=10.0)
+    assert leader.returncode == 0  # the leader stopped on SIGINT, not escalated to SIGKILL
+    assert _gone(child), "the SIGINT-deaf child outlived the group's stop"
+    assert time.monotonic() - t0 < 8.0
+
+
+def test_a_process_that_ignores_sigint_and_sigterm_is_killed(tmp_path: Path) -> None:
+    script = (
+        "import signal, time\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "time.sleep(60)"
+    )
+    proc = LoggedProcess("stubborn", [sys.executable, "-c", script], log_path=tmp_path / "stubborn.log")
+    time.sleep(0.3)
+    t0 = time.monotonic()
+    code = proc.stop(0.5)
+    assert code == -9  # SIGKILL, after SIGINT and SIGTERM each waited 0.5 s
+    assert time.monotonic() - t0 < 5.0
+
+
+def test_logged_process_output_goes_to_its_log(tmp_path: Path) -> None:
+    with LoggedProcess(
+        "echo", ["bash", "-c", "echo hello; echo oops >&2"], log_path=tmp_path / "logs" / "echo.log"
+    ) as p:
+        assert p.wait(5.0) == 0
+        assert p.tail().splitlines() == ["hello", "oops"]
+
+
+def test_a_missing_program_is_a_resource_error(tmp_path: Path) -> None:
+    with pytest.raises(ResourceError, match="no-such-program-xyz"):
+        LoggedProcess("ghost", ["no-such-program-xyz"], log_path=tmp_path / "ghost.log")
+
+
+def test_wait_for_port_sees_a_listener_and_reports_a_dead_process(tmp_path: Path) -> None:
+    port = free_port()
+    assert free_udp_port() > 0
+    server = LoggedProcess(
+        "listener", [sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"], log_path=tmp_path / "l.log"
+    )
+    try:
+        wait_for_port(port, timeout_s=10.0, proc=server)
+    finally:
+        server.stop()
+    dead = LoggedProcess("dead", [sys.executable, "-c", "print('bye')"], log_path=tmp_path / "d.log")
+    dead.wait(5.0)
+    with pytest.raises(ResourceError, match=r"dead exited with 0 before opening port \d+:\nbye"):
+        wait_for_port(free_port(), timeout_s=5.0, proc=dead)
