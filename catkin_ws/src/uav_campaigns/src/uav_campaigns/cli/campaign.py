@@ -57,6 +57,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     run.add_argument("--retry-failed", action="store_true", help="try the runs given up on again (max_attempts more)")
     run.add_argument("--dry-run", action="store_true", help="print the plan and what would run; start nothing")
+    run.add_argument("--arms", help="run only these arms now (comma-separated); the others stay to run later")
+    run.add_argument("--seeds", help="run only these seeds now (comma-separated)")
     rep = sub.add_parser("report", help="rebuild runs.csv, summary.csv, paired.csv, success.csv and report.html")
     rep.add_argument("dir", type=Path, help="a campaign directory")
     return p.parse_args(argv)
@@ -105,6 +107,22 @@ def _report(cdir: CampaignDir, campaign: Campaign, out: TextIO) -> Tables:
     report = build_report(cdir, campaign, tables, text)
     out.write(f"tables: {cdir.path / 'runs.csv'}, summary.csv, paired.csv, success.csv\nreport: {report}\n")
     return tables
+
+
+def _only(decision: Decision, runs: Sequence[PlannedRun], args: argparse.Namespace, campaign: Campaign) -> Decision:
+    """The decision restricted to ``--arms`` / ``--seeds`` (the rest of the plan stays to run later)."""
+    arms = set(args.arms.split(",")) if args.arms else set(campaign.arms)
+    try:
+        seeds = {int(s) for s in args.seeds.split(",")} if args.seeds else set(campaign.seeds)
+    except ValueError as err:
+        msg = f"--seeds takes comma-separated integers, got {args.seeds!r}"
+        raise CampaignConfigError(msg) from err
+    unknown = sorted(arms - set(campaign.arms)) + sorted(str(s) for s in seeds - set(campaign.seeds))
+    if unknown:
+        msg = f"--arms/--seeds name {unknown}, which the campaign does not have"
+        raise CampaignConfigError(msg)
+    chosen = {r.key for r in runs if r.arm in arms and r.seed in seeds}
+    return Decision(decision.done, tuple(x for x in decision.run if x[0] in chosen), decision.gave_up)
 
 
 def _dry_run(runs: Sequence[PlannedRun], decision: Decision, out: TextIO) -> None:
@@ -178,6 +196,8 @@ def _run(args: argparse.Namespace, out: TextIO) -> int:
                 cdir.append({"event": "retry", "key": key, "try": st.tries})
         states = fold(cdir.events())
     decision = decide(keys, states, campaign.max_attempts)
+    if args.arms or args.seeds:
+        decision = _only(decision, runs, args, campaign)
     unique = len(set(keys))
     stale = sum(1 for k, s in states.items() if s.done is not None and k not in set(keys))
     out.write(
@@ -235,3 +255,6 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:
     except CampaignError as err:
         sys.stderr.write(f"uav-campaign: {err}\n")
         return int(ExitCode.FAILURE)
+    except KeyboardInterrupt:
+        sys.stderr.write("uav-campaign: interrupted; run the same command again to resume\n")
+        return 130

@@ -111,6 +111,7 @@ def connect(
             processes=True,
             dashboard_address=dashboard_address,
             silence_logs=logging.ERROR,
+            preload=["uav_campaigns.shell.local_worker"],  # the workers ignore Ctrl-C: uav-campaign handles it
         )
         client = Client(local, set_as_default=False)
         cluster = Cluster(client, local, str(local.scheduler_address), str(client.dashboard_link or ""))
@@ -267,6 +268,8 @@ class Executor:
             self._orphan(previous, f"started again on {ev.get('worker')} before its first try reported")
         ev = {**ev, "run_path": self._rel(str(ev.get("run_dir", "")))}
         self.cdir.append(ev)
+        if (key, int(ev["try"])) not in self._futures.values():
+            return  # its result came first (events and results travel separately): it is not running any more
         self._running[key] = _Running(key, int(ev["try"]), str(ev.get("worker")), str(ev.get("run_dir")), time.time())
         self._say(f"started  {self.runs[key].label} (try {ev['try']}) on {ev.get('worker')} -> {ev.get('run_dir')}")
 

@@ -51,7 +51,9 @@ __all__ = [
     "execute_run",
     "pack_run_dir",
     "probe_worker",
+    "uav_run_argv",
     "unpack_run_dir",
+    "write_inputs",
 ]
 
 #: Files left out of a run folder sent back over the network (big, and not needed by the campaign report).
@@ -96,7 +98,7 @@ def _fresh_dir(path: Path) -> Path:
     return candidate
 
 
-def _write_inputs(job: Mapping[str, Any], run_dir: Path) -> Path:
+def write_inputs(job: Mapping[str, Any], run_dir: Path) -> Path:
     """The world file and the effective scenario (pointing at that world file) in the run folder."""
     run_dir.mkdir(parents=True, exist_ok=True)
     world = run_dir / "world.yaml"
@@ -109,7 +111,8 @@ def _write_inputs(job: Mapping[str, Any], run_dir: Path) -> Path:
     return path
 
 
-def _argv(scenario: Path, run_dir: Path) -> list[str]:
+def uav_run_argv(scenario: Path, run_dir: Path) -> list[str]:
+    """``uav-run SCENARIO --run-dir RUN_DIR --quiet``, under ``setpriv --pdeathsig TERM`` where it exists."""
     argv = ["uav-run", str(scenario), "--run-dir", str(run_dir), "--quiet"]
     setpriv = shutil.which("setpriv")
     if setpriv is not None:
@@ -167,10 +170,10 @@ def execute_run(
     rc: int | None = None
     hung = stopped = False
     try:
-        scenario = _write_inputs(job, run_dir)
+        scenario = write_inputs(job, run_dir)
         if on_event is not None:
             on_event({**base, "event": "started", "run_dir": str(run_dir), "t": started_at})
-        proc = LoggedProcess("uav-run", _argv(scenario, run_dir), log_path=log, env={"PYTHONUNBUFFERED": "1"})
+        proc = LoggedProcess("uav-run", uav_run_argv(scenario, run_dir), log_path=log, env={"PYTHONUNBUFFERED": "1"})
         deadline = t0 + float(job["budget_s"]) + BUDGET_GRACE_S
         try:
             while proc.alive():

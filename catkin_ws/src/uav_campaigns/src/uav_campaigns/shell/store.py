@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -119,8 +120,8 @@ class CampaignDir:
     # ------------------------------------------------------------------------------------------- manifest
 
     def append(self, event: Mapping[str, Any]) -> None:
-        """Append one event to the manifest and make it durable before returning."""
-        line = json.dumps(dict(event), default=str, allow_nan=True) + "\n"
+        """Append one event (stamped ``t``, Unix seconds, unless it has one) and make it durable before returning."""
+        line = json.dumps({"t": time.time(), **dict(event)}, default=str, allow_nan=True) + "\n"
         with self._lock:
             self.path.mkdir(parents=True, exist_ok=True)
             with self.manifest_path.open("a", encoding="utf-8") as fh:
