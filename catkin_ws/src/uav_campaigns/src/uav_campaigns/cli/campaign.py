@@ -93,8 +93,9 @@ def _summary_lines(campaign: Campaign, tables: Tables) -> list[str]:
         for p in tables.paired:
             if p.metric == metric and p.comparison.n:
                 c = p.comparison
+                ci = f"[{c.ci_low:.4g}, {c.ci_high:.4g}]" if c.n > 1 else "[–]"
                 lines.append(
-                    f"    {p.arm} − {p.reference}: {c.mean_diff:+.4g} [{c.ci_low:.4g}, {c.ci_high:.4g}], "
+                    f"    {p.arm} − {p.reference}: {c.mean_diff:+.4g} {ci}, "
                     f"Wilcoxon p={c.wilcoxon.p_value:.3g} ({c.n} pairs)"
                 )
     return lines
@@ -177,7 +178,7 @@ def _execute(
         out.write(
             f"this invocation: {result.finished} run(s) done in {format_duration(result.wall_s)}, "
             f"{sum(result.run_sim_s):.0f} s simulated ({rate:.2f} simulated s per wall s); "
-            f"{result.failed_tries} failed tries, {overhead:.1f} s per run outside uav-run\n"
+            f"{result.failed_tries} failed tries, {overhead:.1f} s per run outside uav-run ({result.slots} slots)\n"
         )
     return result
 

@@ -165,6 +165,8 @@ class InvocationResult:
     #: Wall seconds of each run's ``uav-run`` (inside the task) and the simulated seconds it ran.
     run_wall_s: list[float] = field(default_factory=list)
     run_sim_s: list[float] = field(default_factory=list)
+    #: The most runs the cluster ran at once (its threads) during the invocation.
+    slots: int = 1
 
 
 class Executor:
@@ -400,12 +402,14 @@ class Executor:
         for key, try_no in decision.run:
             self._submit(key, try_no)
         live = self.cluster.workers()
+        result.slots = max(1, sum(live.values()))
         last_check = time.monotonic()
         try:
             while self._futures:
                 self._drain()
                 if time.monotonic() - last_check >= worker_check_s:
                     live = self.cluster.workers()
+                    result.slots = max(result.slots, sum(live.values()))
                     self._check_workers(live)
                     last_check = time.monotonic()
                 for fut in [f for f in self._futures if f.done()]:
@@ -478,8 +482,12 @@ class Executor:
 
 
 def throughput(result: InvocationResult) -> tuple[float, float]:
-    """(simulated seconds per wall second of the invocation, wall seconds per run not spent in uav-run)."""
+    """(simulated seconds per wall second of the invocation, run-slot seconds per run not spent in uav-run).
+
+    The second is ``(wall x slots - sum of the runs' wall) / runs``: scheduling, task start-up, result handling,
+    and slots left idle (e.g. the last run alone at the end).
+    """
     n = len(result.run_wall_s)
     if n == 0 or result.wall_s <= 0:
         return (math.nan, math.nan)
-    return (sum(result.run_sim_s) / result.wall_s, (result.wall_s - sum(result.run_wall_s)) / n)
+    return (sum(result.run_sim_s) / result.wall_s, (result.wall_s * result.slots - sum(result.run_wall_s)) / n)
