@@ -130,7 +130,8 @@ def main(argv: list[str]) -> int:
     record("campaign.smoke.sequential", seq_rate, "sim s/s", seq_rate, notes=notes)
     auto_rate = ca_sim / ca_wall
     record(
-        "campaign.smoke.throughput", auto_rate, "sim s/s", seq_rate, target=">= 1x sequential", met=auto_rate >= seq_rate,
+        "campaign.smoke.throughput", auto_rate, "sim s/s", seq_rate,
+        target=">= 1x sequential", met=auto_rate >= seq_rate,
         notes=f"embedded cluster sized to the machine (cores_per_run 1): {ca_wall:.0f} s wall, whole command",
     )  # fmt: skip
     one_rate = c1_sim / c1_wall

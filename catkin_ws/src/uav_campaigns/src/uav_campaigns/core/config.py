@@ -40,7 +40,8 @@ __all__ = [
 
 #: What each seed is applied to: the world generator's seed, the person's placement seed (search and
 #: rescue) and the noise seeds (the sensor bridge's depth/pose noise, the SITL's estimator noise).
-SEED_TARGETS = ("world", "person", "noise")
+SeedTarget = Literal["world", "person", "noise"]
+SEED_TARGETS: tuple[SeedTarget, ...] = ("world", "person", "noise")
 
 #: The metrics the report plots and the campaign summary prints, in order (metrics.json's dotted names;
 #: ``freshness.*`` are derived from the run's time series, docs/campaigns.md).
@@ -121,7 +122,7 @@ class Campaign:
     description: str = ""
     #: Scenario overrides every arm shares, merged before the arm's own (same form as an arm's).
     overrides: dict[str, Any] = field(default_factory=dict)
-    seeds_apply_to: tuple[Literal["world", "person", "noise"], ...] = SEED_TARGETS
+    seeds_apply_to: tuple[SeedTarget, ...] = SEED_TARGETS
     repeats: int = 1
     #: Simulated seconds per run (``stop.time_limit_s``); null keeps each arm's scenario value.
     time_limit_s: float | None = None

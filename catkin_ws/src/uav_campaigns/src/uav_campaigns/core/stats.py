@@ -74,8 +74,9 @@ class PairedComparison:
 
 
 def _finite(values: Sequence[float] | FloatArray) -> FloatArray:
-    arr = np.asarray(values, dtype=np.float64).ravel()
-    return arr[np.isfinite(arr)]
+    arr: FloatArray = np.asarray(values, dtype=np.float64).ravel()
+    out: FloatArray = arr[np.isfinite(arr)]
+    return out
 
 
 def _check_confidence(confidence: float) -> None:
@@ -159,7 +160,8 @@ def _exact_rank_sum_distribution(doubled_ranks: npt.NDArray[np.int64]) -> FloatA
         shifted = np.zeros_like(counts)
         shifted[int(r) :] = counts[: total + 1 - int(r)]
         counts = counts + shifted
-    return counts / counts.sum()
+    pmf: FloatArray = counts / counts.sum()
+    return pmf
 
 
 def wilcoxon_signed_rank(differences: Sequence[float] | FloatArray, *, exact_max_n: int = 50) -> WilcoxonResult:

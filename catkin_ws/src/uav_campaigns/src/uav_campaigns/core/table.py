@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from uav_campaigns.core.config import Campaign, parse_success
 from uav_campaigns.core.stats import (
@@ -39,6 +40,8 @@ __all__ = [
     "success_table",
     "summary_table",
 ]
+
+FloatArray = npt.NDArray[np.float64]
 
 #: The identity and bookkeeping columns of runs.csv, before the metrics.
 ID_COLUMNS = (
@@ -67,7 +70,7 @@ def flatten_metrics(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]
     return out
 
 
-def _slope(t: np.ndarray, y: np.ndarray) -> float:
+def _slope(t: FloatArray, y: FloatArray) -> float:
     ok = np.isfinite(t) & np.isfinite(y)
     if np.count_nonzero(ok) < 3 or np.ptp(t[ok]) <= 0:
         return math.nan
@@ -89,7 +92,7 @@ def freshness(series: Sequence[Mapping[str, float]]) -> dict[str, float]:
     if len(series) < 3:
         return {f"freshness.{k}": nan for k in keys}
 
-    def col(name: str) -> np.ndarray:
+    def col(name: str) -> FloatArray:
         return np.array([float(r.get(name, nan)) for r in series], dtype=np.float64)
 
     t = col("t_s")

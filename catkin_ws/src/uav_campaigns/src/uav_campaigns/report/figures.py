@@ -81,9 +81,10 @@ def metric_figure(
                 ax2.plot(c.mean_diff, i, "D", color="#111")
     ax2.axvline(0.0, color="#888", lw=1)
     labels = []
-    for c in comps:
-        p = c.comparison.wilcoxon.p_value
-        labels.append(f"{c.arm} − {c.reference}\nn={c.comparison.n}" + (f", p={p:.2g}" if math.isfinite(p) else ""))
+    for row in comps:
+        p = row.comparison.wilcoxon.p_value
+        pair = f"{row.arm} − {row.reference}\nn={row.comparison.n}"
+        labels.append(pair + (f", p={p:.2g}" if math.isfinite(p) else ""))
     ax2.set_yticks(range(len(comps)), labels, fontsize=8)
     ax2.set_ylim(-0.6, max(0.6, len(comps) - 0.4))
     ax2.set_title("paired difference (same seed): runs, mean and CI", fontsize=10)
