@@ -237,5 +237,5 @@ def load_campaign(path: Path) -> Campaign:
     if campaign.source is not None:
         msg = f"{path}: 'source' is set by the loader, remove it from the file"
         raise CampaignConfigError(msg)
-    scenario = campaign.scenario if campaign.scenario.is_absolute() else path.resolve().parent / campaign.scenario
+    scenario = (path.resolve().parent / campaign.scenario).resolve()  # an absolute scenario path stays as it is
     return replace(campaign, source=path.resolve(), scenario=scenario, name=campaign.name or path.stem)
