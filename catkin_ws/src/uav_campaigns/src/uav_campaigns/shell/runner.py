@@ -174,7 +174,7 @@ def execute_run(
         if on_event is not None:
             on_event({**base, "event": "started", "run_dir": str(run_dir), "t": started_at})
         proc = LoggedProcess("uav-run", uav_run_argv(scenario, run_dir), log_path=log, env={"PYTHONUNBUFFERED": "1"})
-        deadline = t0 + float(job["budget_s"]) + BUDGET_GRACE_S
+        deadline = t0 + float(job["budget_s"]) + float(job.get("grace_s", BUDGET_GRACE_S))
         try:
             while proc.alive():
                 time.sleep(poll_s)
@@ -186,7 +186,7 @@ def execute_run(
                     break
         finally:
             # SIGINT: uav-run stops roslaunch (every node, the bag) and still builds the report; then escalate
-            rc = proc.stop(20.0, int_timeout_s=90.0)
+            rc = proc.stop(float(job.get("stop_timeout_s", 20.0)), int_timeout_s=float(job.get("int_timeout_s", 90.0)))
     except ResourceError as err:
         result.update(status="failed", reason="unavailable", exit_code=None, log_tail=str(err))
         return _finish(result, job, run_dir, tmp_root, t0)
