@@ -161,10 +161,10 @@ def _runs_section(rows: Sequence[Mapping[str, Any]]) -> str:
     return _table(header, out, numeric_from=99)
 
 
-def _problems_section(cdir: CampaignDir, plan_keys: set[str]) -> str:
+def _problems_section(cdir: CampaignDir, labels: Mapping[str, str]) -> str:
     items = []
     for key, st in fold(cdir.events()).items():
-        if key not in plan_keys:
+        if key not in labels:
             continue
         for ev in st.history:
             if ev.get("event") == "orphaned" or ev.get("status") == "failed":
@@ -172,7 +172,7 @@ def _problems_section(cdir: CampaignDir, plan_keys: set[str]) -> str:
                 tail = html.escape(str(ev.get("log_tail") or "")[-1500:])
                 logs = html.escape(str(ev.get("run_path") or ev.get("run_dir") or ""))
                 items.append(
-                    f"<h3>{html.escape(key)} try {ev.get('try')}: {html.escape(what)}</h3>"
+                    f"<h3>{html.escape(labels[key])} try {ev.get('try')}: {html.escape(what)}</h3>"
                     f"<p class='note'>{html.escape(str(ev.get('reason', '')))} — worker "
                     f"{html.escape(str(ev.get('worker')))}, logs <code>{logs}</code></p>"
                     + (f"<pre>{tail}</pre>" if tail else "")
@@ -205,7 +205,8 @@ def build_report(cdir: CampaignDir, campaign: Campaign, tables: Tables, campaign
     all_metrics = sorted({s.metric for s in tables.summary})
     ref = campaign.reference_arm
     limit = html.escape(str(campaign.time_limit_s or "the scenario's"))
-    problems = _problems_section(cdir, {str(r["key"]) for r in tables.rows})
+    labels = {str(r["key"]): f"{r['arm']}/s{r['seed']}/r{r['repeat']}" for r in tables.rows}
+    problems = _problems_section(cdir, labels)
     body = f"""
 <header><h1>Campaign {html.escape(campaign.name)}</h1>
 <p>{html.escape(campaign.description)}</p>
