@@ -31,6 +31,7 @@ import io
 import json
 import os
 import shutil
+import signal
 import socket
 import tarfile
 import tempfile
@@ -42,7 +43,7 @@ from typing import Any
 import yaml
 
 from uav_common.errors import ResourceError
-from uav_common.shell.processes import LoggedProcess
+from uav_common.shell.processes import LoggedProcess, with_parent_death_signal
 
 __all__ = [
     "ARCHIVE_EXCLUDE",
@@ -112,13 +113,10 @@ def write_inputs(job: Mapping[str, Any], run_dir: Path) -> Path:
 
 
 def uav_run_argv(scenario: Path, run_dir: Path) -> list[str]:
-    """``uav-run SCENARIO --run-dir RUN_DIR --quiet``, under ``setpriv --pdeathsig TERM`` where it exists."""
+    """``uav-run SCENARIO --run-dir RUN_DIR --quiet``, under ``setpriv --pdeathsig TERM``."""
     argv = ["uav-run", str(scenario), "--run-dir", str(run_dir), "--quiet"]
-    setpriv = shutil.which("setpriv")
-    if setpriv is not None:
-        # the kernel sends uav-run SIGTERM if the worker dies: it then stops its run instead of orphaning it
-        argv = [setpriv, "--pdeathsig", "TERM", "--", *argv]
-    return argv
+    # the kernel sends uav-run SIGTERM if the worker dies: it then stops its run instead of orphaning it
+    return with_parent_death_signal(argv, signal.SIGTERM)
 
 
 #: uav-run's exit status -> the failure reason (docs/architecture.md exit codes); others: killed by a signal.

@@ -239,7 +239,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:  #
         f"ROS master :{master_port}, GCS udp:{ports.gcs}\n"
     )
     out.flush()
-    proc = LoggedProcess("roslaunch", cmd, log_path=launch_log, env=env)
+    # SIGINT to roslaunch if uav-run itself dies (killed, or its campaign worker gone): the run stops cleanly.
+    proc = LoggedProcess("roslaunch", cmd, log_path=launch_log, env=env, parent_death_signal=signal.SIGINT)
     interrupted = False
 
     def on_signal(_sig: int, _frame: Any) -> None:
