@@ -163,7 +163,14 @@ def project_packages(repo: Path) -> list[Package]:
             "roslaunch": "uav-run starts `roslaunch uav_scenarios <mission>.launch`",
         },
     )
-    return [common, sitl, router, bridge, autonomy, perception, scenarios]
+    src, pkg = catkin("uav_datasets")
+    datasets = Package(
+        "uav_datasets",
+        src,
+        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools"}),
+        pkg,
+    )
+    return [common, sitl, router, bridge, autonomy, perception, scenarios, datasets]
 
 
 # ---------------------------------------------------------------------------------------------- parsing
