@@ -366,3 +366,50 @@ def test_frame_records_round_trip(dataset: tuple[Path, GenerateResult]) -> None:
     out, _ = dataset
     for rec in read_records(out)[:3]:
         assert FrameRecord.from_json(rec.to_json()) == rec
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def test_a_dead_worker_is_reported_and_the_run_resumes(
+    dataset: tuple[Path, GenerateResult], workdir: Path, cache: Path
+) -> None:
+    one, _ = dataset
+    out = workdir / "dead_worker"
+    config = workdir / "dataset.yaml"
+    argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
+    argv += ["--workers", "2", "--cache-dir", str(cache), "--quiet"]
+    proc = subprocess.Popen(argv, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        victim = None
+        deadline = time.monotonic() + 90
+        while victim is None and time.monotonic() < deadline and proc.poll() is None:
+            journals = list((out / ".progress").glob("*.jsonl")) if (out / ".progress").is_dir() else []
+            if any(p.read_text().count("\n") >= 1 for p in journals):
+                workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+                victim = max(workers, default=None)  # a worker (not the resource tracker)
+            time.sleep(0.02)
+        assert victim is not None, "no worker to kill"
+        os.kill(victim, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    assert proc.returncode == 3, err
+    assert "died" in err
+    assert "resume" in err
+    assert not (out / "annotations").exists()
+    assert main(["generate", str(config), "--out", str(out), "--cache-dir", str(cache), "--quiet"]) == 0
+    a, b = _tree(one), _tree(out)
+    assert sorted(a) == sorted(b)
+    assert _differ(a, b) == []

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import multiprocessing
 import queue as queue_mod
+import signal
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
@@ -129,12 +130,19 @@ class _Slots:
 
 def _encoder_main(slots: _Slots, inbox: Any, outbox: Any) -> None:
     """The helper process: encode the frame in each slot it is told about, answer ``(slot, key, error)``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the renderer, which closes this helper
+    parent = multiprocessing.parent_process()
     shms = [shared_memory.SharedMemory(name=n) for n in slots.names]
     height, width, out_dir = slots.height, slots.width, slots.out_dir
     luts: dict[int, npt.NDArray[np.uint16]] = {}
     try:
         while True:
-            msg = inbox.get()
+            try:
+                msg = inbox.get(timeout=1.0)
+            except queue_mod.Empty:
+                if parent is not None and not parent.is_alive():
+                    return  # the renderer was killed: do not outlive it
+                continue
             if msg is None:
                 return
             slot, payload, lut = msg

@@ -20,6 +20,7 @@ import json
 import multiprocessing
 import os
 import queue as queue_mod
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -137,10 +138,27 @@ _KINDS: dict[str, type[DatasetError]] = {
 }
 
 
+class _OrphanedError(Exception):
+    """The parent of a worker is gone."""
+
+
 def _shard_main(job: ShardJob, messages: Any) -> None:
-    """A spawned worker: run the shard, send ``("frame", index)`` per frame, ``("error", kind, text)`` on failure."""
+    """A spawned worker: run the shard, send ``("frame", index)`` per frame, ``("error", kind, text)`` on failure.
+
+    It stops after the frame in hand when its parent is gone (killed), rather than finishing its shard alone.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops the workers
+    parent = multiprocessing.parent_process()
+
+    def report(index: int) -> None:
+        if parent is not None and not parent.is_alive():
+            raise _OrphanedError
+        messages.put(("frame", index))
+
     try:
-        run_shard(job, lambda index: messages.put(("frame", index)))
+        run_shard(job, report)
+    except _OrphanedError:
+        return
     except SamplingError as err:
         messages.put(("error", "sampling", str(err)))
     except FlightError as err:
