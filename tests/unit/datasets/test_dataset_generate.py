@@ -13,6 +13,7 @@ import filecmp
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -413,3 +414,24 @@ def test_a_dead_worker_is_reported_and_the_run_resumes(
     a, b = _tree(one), _tree(out)
     assert sorted(a) == sorted(b)
     assert _differ(a, b) == []
+
+
+def test_check_catches_a_damaged_dataset(dataset: tuple[Path, GenerateResult], workdir: Path) -> None:
+    one, _ = dataset
+    bad = workdir / "damaged"
+    shutil.copytree(one, bad, symlinks=True)
+    coco = bad / "annotations" / "instances.json"
+    doc = json.loads(coco.read_text())
+    doc["annotations"][3]["bbox"][2] += 1  # one box a pixel too wide
+    coco.write_text(json.dumps(doc))
+    rec = next(r for r in read_records(bad) if r.labels)
+    yolo = bad / rec.files["yolo"]
+    yolo.write_text(yolo.read_text().replace(" 0.", " 0.0", 1))  # one YOLO coordinate off by a factor of 10
+    report = check_dataset(bad)
+    failed = {name for name, ok, _ in report.results if not ok}
+    assert failed == {
+        "COCO annotations match the frames' labels",
+        "tight boxes equal mask extents",
+        "YOLO round trip",
+    }, report.text()
+    assert main(["check", str(bad)]) == 1

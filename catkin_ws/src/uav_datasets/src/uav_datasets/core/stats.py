@@ -17,12 +17,14 @@ from uav_datasets.core.records import SIZE_BINS, FrameRecord
 
 __all__ = ["VISIBILITY_BANDS", "DatasetStats", "band_labels", "band_of", "dataset_stats", "stats_markdown"]
 
-#: Visible-fraction bands of the card (the last, exactly 1, is "nothing in front").
+#: Visible-fraction bands of the card (the last, exactly 1, is "nothing in front"; 0.95-<1 is mostly a vehicle
+#: whose wheel dips below the terrain on a slope, which counts as hidden).
 VISIBILITY_BANDS: tuple[tuple[float, float, str], ...] = (
     (0.0, 0.25, "<0.25"),
     (0.25, 0.5, "0.25-0.5"),
     (0.5, 0.75, "0.5-0.75"),
-    (0.75, 1.0, "0.75-<1"),
+    (0.75, 0.95, "0.75-0.95"),
+    (0.95, 1.0, "0.95-<1"),
     (1.0, 1.0, "1 (unoccluded)"),
 )
 

@@ -17,6 +17,7 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -82,34 +83,66 @@ def coco_ap(path: Path, iou_type: str = "bbox") -> tuple[float, int]:
         ev.params.maxDets = [1, 10, max(100, per_image)]
         ev.evaluate()
         ev.accumulate()
-        ev.summarize()
-    return float(ev.stats[0]), len(anns)
+    # AP@[0.50:0.95], every area, the largest maxDets (COCOeval.summarize prints maxDets=100 whatever is set)
+    precision = ev.eval["precision"][:, :, :, 0, -1]
+    valid = precision[precision > -1]
+    return (float(valid.mean()) if valid.size else float("nan")), len(anns)
 
 
-def _check_masks(folder: Path, frames: list[FrameRecord], report: CheckReport) -> None:
+def _coco_labels(doc: dict[str, Any]) -> dict[int, list[dict[str, Any]]]:
+    """The COCO file's annotations by frame index (image id - 1), in file order."""
+    out: dict[int, list[dict[str, Any]]] = {img["id"] - 1: [] for img in doc["images"]}
+    for ann in doc["annotations"]:
+        out.setdefault(ann["image_id"] - 1, []).append(ann)
+    return out
+
+
+def _check_coco_matches(doc: dict[str, Any], frames: list[FrameRecord], report: CheckReport) -> None:
+    by_frame = _coco_labels(doc)
+    bad = [
+        rec.name
+        for rec in frames
+        if [
+            (a["instance_id"], a["category_id"], list(a["bbox"]), a["segmentation"])
+            for a in by_frame.get(rec.index, [])
+        ]
+        != [(lab.instance_id, lab.class_id, list(lab.bbox), lab.segmentation) for lab in rec.labels]
+    ]
+    n = len(doc["annotations"])
+    report.add(
+        "COCO annotations match the frames' labels",
+        len(doc["images"]) == len(frames) and not bad,
+        f"{len(doc['images'])} images, {n} annotations" + (f"; frames that differ: {bad[:5]}" if bad else ""),
+    )
+
+
+def _check_masks(folder: Path, frames: list[FrameRecord], doc: dict[str, Any] | None, report: CheckReport) -> None:
+    """Each tight box against its mask's extent and area, and each mask against the instance-id PNG (the COCO
+    file's annotations when there is one, else the frames' labels)."""
     from pycocotools import mask as mask_utils  # noqa: PLC0415
 
+    by_frame = _coco_labels(doc) if doc is not None else None
     n = bad_box = bad_area = bad_png = 0
     first_bad = ""
     for rec in frames:
         ids = read_ids(folder / rec.files["instance_mask"]) if "instance_mask" in rec.files else None
-        for lab in rec.labels:
+        if by_frame is not None:
+            items = [(a["instance_id"], a["bbox"], a["area"], a["segmentation"]) for a in by_frame.get(rec.index, [])]
+        else:
+            items = [(lab.instance_id, lab.bbox, lab.area, lab.segmentation) for lab in rec.labels]
+        for iid, bbox, area, segmentation in items:
             n += 1
-            seg = dict(lab.segmentation)
+            seg = dict(segmentation)
             seg["counts"] = seg["counts"].encode("ascii")
             box = [int(v) for v in mask_utils.toBbox(seg).tolist()]
-            if box != list(lab.bbox):
+            if box != [int(v) for v in bbox]:
                 bad_box += 1
-                first_bad = (
-                    first_bad or f"frame {rec.name} instance {lab.instance_id}: bbox {list(lab.bbox)}, mask {box}"
-                )
-            if int(mask_utils.area(seg)) != lab.area:
+                first_bad = first_bad or f"frame {rec.name} instance {iid}: bbox {list(bbox)}, mask {box}"
+            if int(mask_utils.area(seg)) != area:
                 bad_area += 1
-            if ids is not None and not np.array_equal(mask_utils.decode(seg).astype(bool), ids == lab.instance_id):
+            if ids is not None and not np.array_equal(mask_utils.decode(seg).astype(bool), ids == iid):
                 bad_png += 1
-                first_bad = (
-                    first_bad or f"frame {rec.name} instance {lab.instance_id}: mask differs from the instance PNG"
-                )
+                first_bad = first_bad or f"frame {rec.name} instance {iid}: mask differs from the instance PNG"
     ok = bad_box == bad_area == bad_png == 0
     detail = (
         f"{n} masks: {bad_box} tight boxes differ from their mask extent, {bad_area} areas from their pixel "
@@ -209,14 +242,9 @@ def check_dataset(folder: Path) -> CheckReport:
         f"{sum(len(r.files) for r in frames)} files" + (f"; missing {missing[:3]}" if missing else ""),
     )
     coco = folder / "annotations" / "instances.json"
-    if coco.is_file():
-        doc = json.loads(coco.read_text())
-        n_labels = sum(len(r.labels) for r in frames)
-        report.add(
-            "COCO file matches the frames",
-            len(doc["images"]) == len(frames) and len(doc["annotations"]) == n_labels,
-            f"{len(doc['images'])} images, {len(doc['annotations'])} annotations",
-        )
+    doc = json.loads(coco.read_text()) if coco.is_file() else None
+    if doc is not None:
+        _check_coco_matches(doc, frames, report)
         for iou in ("bbox", "segm"):
             ap, n = coco_ap(coco, iou)
             report.add(
@@ -224,8 +252,7 @@ def check_dataset(folder: Path) -> CheckReport:
                 ap == 1.0,
                 f"AP = {ap:.4f} over {n} annotations",
             )
-    if any("instance_mask" in r.files for r in frames) or any(r.labels for r in frames):
-        _check_masks(folder, frames, report)
+    _check_masks(folder, frames, doc, report)
     if frames and "yolo" in frames[0].files:
         _check_yolo(folder, frames, classes, report)
     if frames and "kitti" in frames[0].files:

@@ -1,8 +1,8 @@
 """``uav-dataset preview``: a contact sheet of a dataset's frames with masks and boxes drawn (OpenCV).
 
 Each tile is one frame: its image, each labelled instance's mask tinted in a colour of its track,
-its tight box (the visible pixels' extent) as a solid rectangle in that colour, its loose box (the
-projected 3D box, clipped to the image) as a thin yellow one, and a caption (frame, split, camera
+its tight box (the visible pixels' extent) as a rectangle in that colour, its loose box (the
+projected 3D box, clipped to the image) as a thin white one, and a caption (frame, split, camera
 altitude and pitch, label count). Frames are picked evenly over the dataset, frames with labels first.
 """
 
@@ -24,7 +24,7 @@ from uav_datasets.shell.writers import atomic_write
 
 __all__ = ["contact_sheet", "pick_frames", "write_preview"]
 
-_LOOSE_BGR = (0, 215, 255)
+_LOOSE_BGR = (255, 255, 255)
 _TEXT_BGR = (255, 255, 255)
 
 
@@ -98,8 +98,7 @@ def contact_sheet(
     gap = 4
     sheet = np.full((rows * (th + gap) + gap + 22, cols * (tw + gap) + gap, 3), 25, np.uint8)
     legend = (
-        "tint: instance mask (visible pixels)   box in the tint colour: tight box   "
-        "yellow: loose box (projected 3D box)"
+        "tint: instance mask (visible pixels)   box in the tint colour: tight box   white: loose box (projected 3D box)"
     )
     cv2.putText(sheet, legend, (gap, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _TEXT_BGR, 1, cv2.LINE_AA)
     for k, tile in enumerate(tiles):
