@@ -41,11 +41,18 @@ def _load() -> str:
     return " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
-def render_only(cfg, frames: int) -> float:  # type: ignore[no-untyped-def]
-    """Frames per second of the bare render of the dataset's cameras at its poses (same sampling)."""
+def _cpu_s() -> float:
+    """CPU seconds of this process (all its threads) and of its finished, waited-for descendants."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def render_only(cfg, frames: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """(frames/s, CPU ms per frame) of the bare render of the dataset's cameras at its poses (same sampling)."""
     plan = plan_viewpoints(cfg, frames)
     cam = cfg.camera.model()
     total = 0.0
+    cpu = 0.0
     for seed, wc in world_configs(cfg).items():
         world = load_world(wc, CACHE)
         sampler = ViewpointSampler(world, cfg.viewpoints, cam, cfg.labels.class_list)
@@ -55,24 +62,27 @@ def render_only(cfg, frames: int) -> float:  # type: ignore[no-untyped-def]
         renderer = Renderer(world)
         try:
             renderer.render(cam, poses[0])  # warm-up (shader compile, buffers)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), _cpu_s()
             for pose in poses:
                 renderer.render(cam, pose)
             total += time.perf_counter() - t0
+            cpu += _cpu_s() - c0
         finally:
             renderer.close()
-    return frames / total
+    return frames / total, 1000.0 * cpu / frames
 
 
-def labelled(cfg, frames: int, workers: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
-    """(frames/s of the frame loop, frames/s of the whole generate call) with every output on."""
+def labelled(cfg, frames: int, workers: int) -> tuple[float, float, float]:  # type: ignore[no-untyped-def]
+    """(frames/s of the frame loop, frames/s of the whole generate call, CPU ms per frame of every process)
+    with every output on."""
     out = Path(tempfile.mkdtemp(prefix="bench_dataset_"))
     try:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_s()
         result = generate(cfg, out / "ds", workers=workers, cache_dir=CACHE)
         wall = time.perf_counter() - t0
+        cpu_ms = 1000.0 * (_cpu_s() - c0) / frames
         assert result.made == frames, result
-        return result.frames_per_s, frames / wall
+        return result.frames_per_s, frames / wall, cpu_ms
     finally:
         shutil.rmtree(out, ignore_errors=True)
 
@@ -83,17 +93,18 @@ def main() -> None:
     cfg = replace(base, frames=FRAMES, splits={"train": replace(base.splits["train"], fraction=1.0)})
     for wc in world_configs(cfg).values():
         load_world(wc, CACHE)  # generate + cache outside the timings
-    render_fps = render_only(cfg, FRAMES)
-    fps1, whole1 = labelled(cfg, FRAMES, 1)
-    render_fps_after = render_only(cfg, FRAMES)  # the machine's speed drifts: bracket the measurement
+    render_fps, render_cpu = render_only(cfg, FRAMES)
+    fps1, whole1, cpu1 = labelled(cfg, FRAMES, 1)
+    render_fps_after, _ = render_only(cfg, FRAMES)  # the machine's speed drifts: bracket the measurement
     baseline = (render_fps + render_fps_after) / 2.0
-    fps2, whole2 = labelled(cfg, FRAMES, 2)
+    fps2, whole2, cpu2 = labelled(cfg, FRAMES, 2)
     ratio = fps1 / baseline
     fast_machine = baseline >= 40.0
     notes = (
         f"{FRAMES} frames 640x480 over 3 worlds of the default world config, every output on; render-only "
         f"{render_fps:.1f} and {render_fps_after:.1f} Hz before and after; whole command (annotation files "
-        f"included) {whole1:.1f} frames/s; load {_load()}"
+        f"included) {whole1:.1f} frames/s; CPU per frame (all threads and processes) {cpu1:.1f} ms labelled "
+        f"against {render_cpu:.1f} ms render-only; load {_load()}"
     )
     record(
         "dataset.labelled_fps",
@@ -114,12 +125,20 @@ def main() -> None:
         notes="labelled / render-only, one worker",
     )
     record(
+        "dataset.cpu_ms_per_frame",
+        cpu1,
+        "ms",
+        render_cpu,
+        notes="CPU of every thread and process per labelled frame (one worker) against the bare render's",
+    )
+    record(
         "dataset.labelled_fps_2workers",
         fps2,
         "frames/s",
         baseline,
         notes=(
-            f"--workers 2 (spawned processes, one GL context each); whole command {whole2:.1f} frames/s; load {_load()}"
+            f"--workers 2 (spawned processes, one GL context each); whole command {whole2:.1f} frames/s; "
+            f"CPU per frame {cpu2:.1f} ms; load {_load()}"
         ),
     )
 

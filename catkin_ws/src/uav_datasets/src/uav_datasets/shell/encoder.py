@@ -6,8 +6,9 @@ llvmpipe to finish a frame, so encoder *threads* of the rendering process hardly
 :class:`ProcessWriter` instead hands each frame's colour, depth and instance ids to one helper process
 (started with ``spawn``) through shared memory: a few slots, each holding one frame's arrays, reused in
 turn, so a frame costs the renderer one copy of ~3 MB and no pickling. The helper encodes the PNGs
-(class ids from the instance ids and the world's class table), writes each file atomically and
-reports the frame done; the renderer journals it only then. :class:`InlineWriter` does the same work
+(class ids from the instance ids and the world's class table), writes each file atomically (the label
+texts too: on a busy disk an ``open`` can take milliseconds, which the renderer should not wait for)
+and reports the frame done; the renderer journals it only then. :class:`InlineWriter` does the same work
 synchronously (one process, no helper: tests and tiny datasets).
 """
 
@@ -40,6 +41,7 @@ class FramePayload:
         image, depth_file, instance_file, class_file: relative paths; "" = not written.
         image_format, jpeg_quality, depth_format: the outputs' settings.
         lut_key: which class table turns instance ids into class ids (one per world).
+        texts: small text files (YOLO, KITTI labels and calibration): ``(relative path, content)``.
     """
 
     key: int
@@ -54,6 +56,7 @@ class FramePayload:
     jpeg_quality: int
     depth_format: str
     lut_key: int
+    texts: tuple[tuple[str, str], ...] = ()
 
 
 def write_payload(
@@ -62,8 +65,10 @@ def write_payload(
     images: tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32], npt.NDArray[np.uint16]],
     lut: npt.NDArray[np.uint16],
 ) -> None:
-    """Encode and write one frame's images ``(colour, depth, instance ids)`` (each file atomically)."""
+    """Encode and write one frame's images ``(colour, depth, instance ids)`` and texts (each file atomically)."""
     color, depth, ids = images
+    for rel, text in p.texts:
+        atomic_write(out_dir / rel, text)
     if p.image:
         atomic_write(out_dir / p.image, encode_color(color, p.image_format, p.jpeg_quality))
     if p.depth_file:
@@ -71,8 +76,7 @@ def write_payload(
     if p.instance_file:
         atomic_write(out_dir / p.instance_file, encode_ids(ids))
     if p.class_file:
-        safe = np.minimum(ids, np.uint16(len(lut) - 1))
-        atomic_write(out_dir / p.class_file, encode_ids(lut[safe]))
+        atomic_write(out_dir / p.class_file, encode_ids(np.take(lut, ids, mode="clip")))
 
 
 class InlineWriter:

@@ -27,12 +27,15 @@ __all__ = [
     "ENGINE_VERSION",
     "MANIFEST",
     "PROGRESS",
+    "RECORDS",
+    "clear_progress",
     "config_differences",
     "fingerprint",
     "journal_records",
     "prepare_folder",
     "read_manifest",
     "read_records",
+    "remove_temporaries",
     "write_manifest",
 ]
 
@@ -154,6 +157,17 @@ def journal_records(folder: Path) -> dict[int, FrameRecord]:
             if all((folder / rel).is_file() for rel in rec.files.values()):
                 out[rec.index] = rec
     return out
+
+
+def remove_temporaries(folder: Path) -> int:
+    """Delete the temporary files an interrupted run left (``.<name>.<pid>.tmp`` / ``.lnk``); returns how many."""
+    n = 0
+    for pattern in (".*.tmp", ".*.lnk"):
+        for path in folder.rglob(pattern):
+            if path.is_file() or path.is_symlink():
+                path.unlink(missing_ok=True)
+                n += 1
+    return n
 
 
 def clear_progress(folder: Path) -> None:

@@ -42,6 +42,7 @@ from uav_datasets.shell.folder import (
     journal_records,
     prepare_folder,
     read_manifest,
+    remove_temporaries,
     write_manifest,
 )
 from uav_datasets.shell.produce import FrameProducer
@@ -305,6 +306,7 @@ def generate(
     if prepare_folder(out_dir, manifest):
         return GenerateResult(out_dir, len(plan), 0, 0, time.monotonic() - t0, True, read_manifest(out_dir))
     write_manifest(out_dir, manifest)  # the planned frame count (a live flight's is known only now)
+    remove_temporaries(out_dir)  # what an interrupted run was writing when it stopped
     done = journal_records(out_dir)
     done = {i: r for i, r in done.items() if i < len(plan)}
     todo = [p for p in plan if p.index not in done]

@@ -3,9 +3,9 @@
 A :class:`FrameProducer` owns one world's renderer (an EGL context bound to the creating thread: make
 it in the thread, and the process, that uses it). For each :class:`~uav_datasets.core.plan.FramePlan`
 it draws the viewpoint (or takes the flight's pose), moves the objects that are not at their
-generated poses, renders colour, depth and instance ids once, labels the instances, writes the small
-label files (YOLO, KITTI) and returns the images for a writer (``shell.encoder``), which encodes them
-while the next frame renders.
+generated poses, renders colour, depth and instance ids once, labels the instances and returns the
+images and label texts for a writer (``shell.encoder``), which encodes and writes them while the next
+frame renders.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from uav_datasets.core.plan import FramePlan
 from uav_datasets.core.records import FrameRecord
 from uav_datasets.core.sampling import ViewpointSampler, frame_rng
 from uav_datasets.shell.encoder import FramePayload
-from uav_datasets.shell.writers import atomic_write
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.objects import ObjectPose, WorldObject
 from uav_sim_bridge.core.world import World
@@ -114,7 +113,7 @@ class FrameProducer:
         return self._moved.get(iid) or self.world.object(iid)
 
     def make(self, plan: FramePlan) -> tuple[FrameRecord, FramePayload]:
-        """Render and label one frame; writes its label texts and returns its record and its images to write."""
+        """Render and label one frame; returns its record and its files to write (images and label texts)."""
         cfg = self.cfg
         cam = self.camera
         attempts, mode = 1, "flight"
@@ -166,11 +165,12 @@ class FrameProducer:
             position_mode=mode,
         )
         out = cfg.outputs
+        texts: list[tuple[str, str]] = []
         if "yolo" in files:
-            atomic_write(self.out_dir / files["yolo"], yolo_lines(labels, self.class_index, cam.width, cam.height))
+            texts.append((files["yolo"], yolo_lines(labels, self.class_index, cam.width, cam.height)))
         if "kitti" in files:
-            atomic_write(self.out_dir / files["kitti"], kitti_lines(labels))
-            atomic_write(self.out_dir / files["calib"], kitti_calib(rec))
+            texts.append((files["kitti"], kitti_lines(labels)))
+            texts.append((files["calib"], kitti_calib(rec)))
         payload = FramePayload(
             key=plan.index,
             color=frame.color_rgb,
@@ -184,5 +184,6 @@ class FrameProducer:
             jpeg_quality=out.jpeg_quality,
             depth_format=out.depth,
             lut_key=self.world_seed,
+            texts=tuple(texts),
         )
         return rec, payload
