@@ -8,8 +8,13 @@ On the default world (three world seeds), the viewpoints of ``config/datasets/ae
 * ``uav-dataset generate`` of those frames with every output on (PNG image, uint16 depth, instance and
   class masks, COCO, YOLO, KITTI, card), one worker, timed from the first frame to the last file written
   (``dataset.labelled_fps``, recorded with the ratio to the render rate; target ratio >= 0.6 and >= 25
-  frames/s whenever the render rate is >= 40 Hz), and the whole command including the annotation files;
+  frames/s whenever the render rate is >= 40 Hz; world loading, renderer and helper start-up included),
+  and the whole command including the annotation files;
+* the CPU time per frame of every thread and process of both (``dataset.cpu_ms_per_frame``): the
+  machine is shared, and the CPU a frame needs says what the rate would be on two free cores;
 * the same with two workers (``--workers 2``), against the same baseline.
+
+``BENCH_DATASET_FRAMES`` (default 600, 200 per world) sets the frame count.
 
 This machine's speed varies about 2x from hour to hour: the ratio is the stable number.
 Run: ``scripts/in_env python bench/bench_dataset.py`` (or ``make bench``).
@@ -34,7 +39,7 @@ from uav_datasets.shell.worlds import load_world, world_configs
 from uav_sim_bridge.render import Renderer
 
 CACHE = Path(os.environ.get("UAV_ARTIFACTS", REPO / "artifacts")) / "world_cache"
-FRAMES = int(os.environ.get("BENCH_DATASET_FRAMES", "240"))
+FRAMES = int(os.environ.get("BENCH_DATASET_FRAMES", "600"))
 
 
 def _load() -> str:

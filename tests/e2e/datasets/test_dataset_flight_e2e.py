@@ -1,5 +1,6 @@
-"""A sequence from a real recorded run: uav-run flies a short search and rescue (lockstep, replay recording), then
-uav-dataset turns the run's forward and nadir cameras into labelled sequences.
+"""A sequence from a real run: uav-dataset flies a short search and rescue itself (``flight.scenario``: uav-run,
+lockstep, replay recording) and labels its forward camera; then it turns the same recorded run's nadir
+camera into a second sequence (``--run``).
 
 The re-rendered frames are the run's frames: the nadir depth equals the depth the bridge published at
 the same instants, and the forward sequence's labels, filtered as the bridge's detections are (100 m,
@@ -12,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -29,11 +29,11 @@ pytestmark = pytest.mark.slow
 HERE = Path(__file__).resolve().parent
 
 
-def _dataset_yaml(path: Path, camera: str, extra: dict[str, object]) -> Path:
+def _dataset_yaml(path: Path, camera: str, flight: dict[str, object], extra: dict[str, object]) -> Path:
     data = {
         "name": f"flight_{camera}",
         "source": "flight",
-        "flight": {"run": "unused", "camera": camera, "split": "test"},
+        "flight": {"camera": camera, "split": "test", **flight},
         "labels": {"classes": ["person", "vehicle"], "min_visible_pixels": 4, **extra},
         "outputs": {"depth": "float32", "mot": True},
     }
@@ -59,35 +59,29 @@ def _recorded(bag: Path) -> tuple[dict[int, list[tuple[int, tuple[int, int, int,
     return dets, depth
 
 
-@pytest.fixture(scope="module")
-def run_dir() -> Path:
-    out = artifacts_dir() / "dataset_e2e" / "run"
-    shutil.rmtree(out, ignore_errors=True)
-    proc = Proc("dataset_e2e_uav_run", ["uav-run", str(HERE / "flight_sar.yaml"), "--run-dir", str(out), "--quiet"])
+def _generate(config: Path, out: Path, *extra: str) -> None:
+    argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
+    argv += [*extra, "--workers", "2", "--cache-dir", str(artifacts_dir() / "world_cache"), "--quiet"]
+    proc = Proc(f"dataset_e2e_{out.name}", argv)
     try:
-        rc = proc.wait(400)
+        rc = proc.wait(900)
     finally:
         proc.stop()
     assert rc == 0, proc.tail()
-    assert (out / "run.bag").is_file()
-    return out
 
 
-def _generate(config: Path, run: Path, out: Path) -> None:
-    shutil.rmtree(out, ignore_errors=True)
-    argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
-    argv += ["--run", str(run), "--workers", "2", "--cache-dir", str(artifacts_dir() / "world_cache"), "--quiet"]
-    res = subprocess.run(argv, capture_output=True, text=True, timeout=600, check=False)
-    assert res.returncode == 0, res.stderr + res.stdout
-
-
-def test_the_sequences_are_the_runs_frames(run_dir: Path) -> None:
+def test_the_sequences_are_the_runs_frames() -> None:
     work = artifacts_dir() / "dataset_e2e"
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    # the forward camera along a flight flown now, labels filtered as the bridge's detections are
+    fwd = work / "forward"
+    flight = {"scenario": str(HERE / "flight_sar.yaml"), "time_limit_s": 60.0}
+    _generate(_dataset_yaml(work / "forward.yaml", "forward", flight, {"max_range_m": 100.0}), fwd)
+    run_dir = fwd / "source_run"
+    assert (run_dir / "run.bag").is_file()
     dets, depth = _recorded(run_dir / "run.bag")
     assert len(dets) > 150, "the bag should hold the forward camera's detections at 10 Hz"
-    # forward camera, filtered as the bridge's detections are
-    fwd = work / "forward"
-    _generate(_dataset_yaml(work / "forward.yaml", "forward", {"max_range_m": 100.0}), run_dir, fwd)
     frames = read_records(fwd)
     assert len(frames) > 150
     compared = with_objects = 0
@@ -121,7 +115,7 @@ def test_the_sequences_are_the_runs_frames(run_dir: Path) -> None:
     assert any((p / "gt" / "gt.txt").is_file() for p in mot)
     # nadir camera: the re-rendered depth is the depth the bridge published at the same instants
     nad = work / "nadir"
-    _generate(_dataset_yaml(work / "nadir.yaml", "nadir", {}), run_dir, nad)
+    _generate(_dataset_yaml(work / "nadir.yaml", "nadir", {"run": "unused"}, {}), nad, "--run", str(run_dir))
     same = 0
     for rec in read_records(nad):
         stamp = round(rec.timestamp_s * 1e9)
