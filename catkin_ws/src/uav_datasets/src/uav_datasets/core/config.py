@@ -241,7 +241,8 @@ class FlightSpec:
     time_limit_s``) and converts the new run. ``camera`` is one of the run's bridge cameras (its
     intrinsics, mount and rate); frames fall where the bridge rendered them, on the grid of
     ``rate_hz`` (default: the camera's rate) from ``start_s`` to ``end_s`` (simulation seconds since
-    the first state).
+    the first state), skipping frames whose camera is less than ``min_altitude_agl_m`` above the terrain
+    (the vehicle on the ground: its near plane clips the ground in front of it).
     """
 
     run: Path | None = None
@@ -251,6 +252,7 @@ class FlightSpec:
     rate_hz: float | None = None
     start_s: float = 0.0
     end_s: float | None = None
+    min_altitude_agl_m: float = 2.0
     split: str = "test"
     sequence: str = ""
 
@@ -263,6 +265,9 @@ class FlightSpec:
             raise ValueError(msg)
         if self.rate_hz is not None and not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
             msg = f"rate_hz must be > 0, got {self.rate_hz}"
+            raise ValueError(msg)
+        if not (math.isfinite(self.min_altitude_agl_m) and self.min_altitude_agl_m >= 0):
+            msg = f"min_altitude_agl_m must be >= 0, got {self.min_altitude_agl_m}"
             raise ValueError(msg)
         if self.start_s < 0 or (self.end_s is not None and self.end_s <= self.start_s):
             msg = f"need 0 <= start_s < end_s, got start_s={self.start_s}, end_s={self.end_s}"

@@ -7,7 +7,8 @@ one message per simulation state). From the scenario it rebuilds what the bridge
 ``node_params.sim_bridge`` merged, as the launch files do) and the objects the scenario moved (the
 search-and-rescue person's seeded placement). Frames fall where the bridge rendered them: at the first
 state at or after each instant of the camera's rate grid (``RateSchedule``), so the re-rendered frames
-are the run's frames. Object identities are the world's instance ids, the same in every frame.
+are the run's frames (those of the camera at least ``min_altitude_agl_m`` above the terrain). Object
+identities are the world's instance ids, the same in every frame.
 
 ``flight.scenario`` instead flies the scenario first with ``uav-run`` (lockstep, ``replay``
 recording) into ``<dataset>/source_run`` and converts that run.
@@ -135,6 +136,21 @@ def _sequence_name(spec: FlightSpec, bag: Path, folder: Path | None) -> str:
     return re.sub(r"[^A-Za-z0-9_-]", "_", stem)
 
 
+def _moved_objects(bridge: SimBridgeConfig, world: World) -> list[tuple[int, ObjectPose]]:
+    """The objects the run's bridge moved at start-up (``object_poses``), stood on the ground as the bridge does."""
+    by_name = {o.name: o for o in world.objects}
+    moved: list[tuple[int, ObjectPose]] = []
+    for name, (x, y, yaw_deg) in bridge.object_poses.items():
+        if name not in by_name:
+            msg = (
+                f"the run's sim_bridge object_poses names {name!r}, which is not an object of world {world.config.name}"
+            )
+            raise DatasetConfigError(msg)
+        z = world.ground_height_at(x, y)[0]  # engine.move_object: z None -> on the ground
+        moved.append((by_name[name].instance_id, ObjectPose((float(x), float(y), float(z)), math.radians(yaw_deg))))
+    return moved
+
+
 def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Flight, World]:
     """The sequence ``cfg.flight`` asks for along the run at ``run`` (folder or bag).
 
@@ -171,14 +187,7 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
     cam_cfg = bridge.cameras[spec.camera]
     camera = CameraModel.from_config(spec.camera, cam_cfg)
     rate = spec.rate_hz or cam_cfg.rate_hz
-    by_name = {o.name: o for o in world.objects}
-    moved: list[tuple[int, ObjectPose]] = []
-    for name, (x, y, yaw_deg) in bridge.object_poses.items():
-        if name not in by_name:
-            msg = f"the run's sim_bridge object_poses names {name!r}, which is not an object of world {world_cfg.name}"
-            raise DatasetConfigError(msg)
-        z = world.ground_height_at(x, y)[0]  # the bridge stands a moved object on the ground (engine.move_object)
-        moved.append((by_name[name].instance_id, ObjectPose((float(x), float(y), float(z)), math.radians(yaw_deg))))
+    moved = _moved_objects(bridge, world)
     schedule = RateSchedule(rate)
     t0 = states[0][0]
     sequence = _sequence_name(spec, bag, folder)
@@ -190,6 +199,10 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
         rel = t - t0
         if rel < spec.start_s - 1e-9 or (spec.end_s is not None and rel > spec.end_s + 1e-9):
             continue
+        t_map_optical = camera.optical_pose(t_map_base)
+        eye = t_map_optical.translation_m
+        if float(eye[2]) - float(world.height_at(float(eye[0]), float(eye[1]))) < spec.min_altitude_agl_m:
+            continue  # on the ground (or about to land)
         if limit is not None and len(frames) >= limit:
             break
         k = len(frames)
@@ -199,7 +212,7 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
                 name=f"{k:06d}",
                 split=spec.split,
                 world_seed=world_cfg.seed,
-                t_map_optical=camera.optical_pose(t_map_base),
+                t_map_optical=t_map_optical,
                 timestamp_s=t,
                 sequence=sequence,
                 sequence_frame=k + 1,

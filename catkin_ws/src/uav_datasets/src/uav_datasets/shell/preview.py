@@ -1,8 +1,9 @@
 """``uav-dataset preview``: a contact sheet of a dataset's frames with masks and boxes drawn (OpenCV).
 
 Each tile is one frame: its image, each labelled instance's mask tinted in a colour of its track,
-its tight box (the visible pixels' extent) as a rectangle in that colour, its loose box (the
-projected 3D box, clipped to the image) as a thin white one, and a caption (frame, split, camera
+its tight box (the visible pixels' extent) as a rectangle in that colour (and a ring around it when it
+is only a few pixels on the sheet), its loose box (the projected 3D box, clipped to the image) as a thin
+white one, and a caption (frame, split, camera
 altitude and pitch, label count). Frames are picked evenly over the dataset, frames with labels first.
 """
 
@@ -72,6 +73,9 @@ def _tile(folder: Path, rec: FrameRecord, width: int) -> npt.NDArray[np.uint8]:
         x0, y0 = math.floor(x * scale), math.floor(y * scale)
         x1, y1 = math.ceil((x + w) * scale) - 1, math.ceil((y + h) * scale) - 1
         cv2.rectangle(img, (x0 - 1, y0 - 1), (x1 + 1, y1 + 1), _track_colour(lab.track_id), 1)
+        if max(x1 - x0, y1 - y0) < 8:  # a tiny object: ring it so the eye finds it on the sheet
+            centre = ((x0 + x1) // 2, (y0 + y1) // 2)
+            cv2.circle(img, centre, 10, _track_colour(lab.track_id), 1, cv2.LINE_AA)
         if lab.size_px >= 12:
             cv2.putText(
                 img, lab.class_name, (x0, max(10, y0 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.35, _TEXT_BGR, 1, cv2.LINE_AA
