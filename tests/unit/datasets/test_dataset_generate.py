@@ -61,6 +61,15 @@ def dataset(workdir: Path, cfg: DatasetConfig, cache: Path) -> tuple[Path, Gener
     return out, generate(cfg, out, workers=1, cache_dir=cache)
 
 
+@pytest.fixture(scope="module")
+def reference72(workdir: Path, cfg: DatasetConfig, cache: Path) -> Path:
+    """The same dataset with 72 frames, made in one go: what the runs killed half-way must end up equal to
+    (enough frames that a worker is still busy when the test kills it)."""
+    out = workdir / "reference72"
+    generate(cfg.with_overrides(frames=72), out, cache_dir=cache)
+    return out
+
+
 def _tree(folder: Path) -> dict[str, Path]:
     """Every file of a dataset folder (symlinks not followed), by relative path."""
     return {
@@ -223,13 +232,13 @@ def test_an_interrupted_generation_resumes_to_the_same_dataset(
 
 
 def test_a_killed_generation_leaves_no_annotation_file_and_resumes(
-    dataset: tuple[Path, GenerateResult], workdir: Path, cfg: DatasetConfig, cache: Path
+    reference72: Path, workdir: Path, cache: Path
 ) -> None:
-    one, _ = dataset
+    one = reference72
     out = workdir / "killed"
     config = workdir / "dataset.yaml"
     argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
-    argv += ["--workers", "2", "--cache-dir", str(cache), "--quiet"]
+    argv += ["--frames", "72", "--workers", "2", "--cache-dir", str(cache), "--quiet"]
     proc = subprocess.Popen(argv, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 90
@@ -253,7 +262,8 @@ def test_a_killed_generation_leaves_no_annotation_file_and_resumes(
     for path in out.rglob("*.png"):  # whatever is under a final name is whole
         if not path.name.startswith("."):
             assert cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is not None, path
-    assert main(["generate", str(config), "--out", str(out), "--cache-dir", str(cache), "--quiet"]) == 0
+    resume = ["generate", str(config), "--out", str(out), "--frames", "72", "--cache-dir", str(cache), "--quiet"]
+    assert main(resume) == 0
     a, b = _tree(one), _tree(out)
     assert sorted(a) == sorted(b)
     assert _differ(a, b) == []
@@ -381,14 +391,12 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def test_a_dead_worker_is_reported_and_the_run_resumes(
-    dataset: tuple[Path, GenerateResult], workdir: Path, cache: Path
-) -> None:
-    one, _ = dataset
+def test_a_dead_worker_is_reported_and_the_run_resumes(reference72: Path, workdir: Path, cache: Path) -> None:
+    one = reference72
     out = workdir / "dead_worker"
     config = workdir / "dataset.yaml"
     argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
-    argv += ["--workers", "2", "--cache-dir", str(cache), "--quiet"]
+    argv += ["--frames", "72", "--workers", "2", "--cache-dir", str(cache), "--quiet"]
     proc = subprocess.Popen(argv, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         victim = None
@@ -410,7 +418,8 @@ def test_a_dead_worker_is_reported_and_the_run_resumes(
     assert "died" in err
     assert "resume" in err
     assert not (out / "annotations").exists()
-    assert main(["generate", str(config), "--out", str(out), "--cache-dir", str(cache), "--quiet"]) == 0
+    resume = ["generate", str(config), "--out", str(out), "--frames", "72", "--cache-dir", str(cache), "--quiet"]
+    assert main(resume) == 0
     a, b = _tree(one), _tree(out)
     assert sorted(a) == sorted(b)
     assert _differ(a, b) == []

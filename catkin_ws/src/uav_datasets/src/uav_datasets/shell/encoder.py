@@ -195,6 +195,11 @@ class ProcessWriter:
     def pending(self) -> int:
         return self._in_flight
 
+    @property
+    def helper_pid(self) -> int | None:
+        """The helper process's id (for CPU accounting)."""
+        return self._proc.pid
+
     def _collect(self, block: bool) -> None:
         while self._in_flight:
             try:

@@ -126,7 +126,7 @@ def encode_depth(depth_m: npt.NDArray[np.float32], fmt: str) -> tuple[bytes, str
         return _encode(
             ".tiff", np.ascontiguousarray(depth_m, dtype=np.float32), [cv2.IMWRITE_TIFF_COMPRESSION, 1]
         ), ".tiff"
-    return encode_png(depth_to_mm(depth_m)), ".png"
+    return encode_png(depth_to_mm(depth_m), strategy=zlib.Z_RLE), ".png"
 
 
 def encode_ids(ids: npt.NDArray[np.uint16]) -> bytes:
