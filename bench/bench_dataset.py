@@ -11,6 +11,7 @@ uint16 depth, instance and class masks, COCO, YOLO, KITTI, card):
   (it is shared, and its speed swings 2x within minutes). Target: ratio >= 0.6, and >= 25 frames/s
   whenever the render alone reaches 40 Hz;
 * ``dataset.cpu_ms_per_frame``: CPU time of every thread and process per frame, both ways;
+* ``dataset.labelled_ratio_png_stored``: the same ratio with ``outputs.png_compression: none``;
 * ``dataset.generate_fps`` and ``dataset.generate_fps_2workers``: the whole ``uav-dataset generate``
   (world loading, renderer and helper start-up, annotation files and card included) with one and two
   workers, each against a render-only pass of the same frames measured just before it.
@@ -180,6 +181,19 @@ def main() -> None:
         "ms",
         render_cpu,
         notes="CPU of every thread and process per labelled frame (the encoder helper too) against the bare render's",
+    )
+    stored = replace(cfg, outputs=replace(cfg.outputs, png_compression="none"))
+    s_render, s_label, _, s_cpu = interleaved(stored, FRAMES // 2)
+    record(
+        "dataset.labelled_ratio_png_stored",
+        s_label / s_render,
+        "x",
+        1.0,
+        notes=(
+            f"as dataset.labelled_ratio with outputs.png_compression: none (colour and depth PNGs stored, ~2.5x the "
+            f"bytes); {FRAMES // 2} frames, {s_label:.1f} against {s_render:.1f} frames/s, CPU {s_cpu:.1f} ms per "
+            f"frame; load {_load()}"
+        ),
     )
     for workers in (1, 2):
         base_fps, _ = render_only(cfg, FRAMES)

@@ -34,10 +34,11 @@ def _images() -> list[np.ndarray]:
     ]
 
 
+@pytest.mark.parametrize("level", [1, 0])
 @pytest.mark.parametrize("k", range(5))
-def test_png_round_trips_through_opencv_and_pillow(k: int) -> None:
+def test_png_round_trips_through_opencv_and_pillow(k: int, level: int) -> None:
     img = _images()[k]
-    data = encode_png(img)
+    data = encode_png(img, level=level)
     back = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     expected = img[..., ::-1] if img.ndim == 3 else img  # OpenCV gives BGR
     np.testing.assert_array_equal(back.reshape(expected.shape), expected)

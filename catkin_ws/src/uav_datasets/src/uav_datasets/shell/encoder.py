@@ -39,7 +39,8 @@ class FramePayload:
         key: the frame's index (reported back when its files are written).
         color, depth, ids: the render (``ids`` is the instance-id image).
         image, depth_file, instance_file, class_file: relative paths; "" = not written.
-        image_format, jpeg_quality, depth_format: the outputs' settings.
+        image_format, jpeg_quality, depth_format, png_level: the outputs' settings (``png_level`` 0 stores the
+            colour and depth PNGs uncompressed).
         lut_key: which class table turns instance ids into class ids (one per world).
         texts: small text files (YOLO, KITTI labels and calibration): ``(relative path, content)``.
     """
@@ -57,6 +58,7 @@ class FramePayload:
     depth_format: str
     lut_key: int
     texts: tuple[tuple[str, str], ...] = ()
+    png_level: int = 1
 
 
 def write_payload(
@@ -70,9 +72,9 @@ def write_payload(
     for rel, text in p.texts:
         atomic_write(out_dir / rel, text)
     if p.image:
-        atomic_write(out_dir / p.image, encode_color(color, p.image_format, p.jpeg_quality))
+        atomic_write(out_dir / p.image, encode_color(color, p.image_format, p.jpeg_quality, p.png_level))
     if p.depth_file:
-        atomic_write(out_dir / p.depth_file, encode_depth(depth, p.depth_format)[0])
+        atomic_write(out_dir / p.depth_file, encode_depth(depth, p.depth_format, p.png_level)[0])
     if p.instance_file:
         atomic_write(out_dir / p.instance_file, encode_ids(ids))
     if p.class_file:

@@ -185,5 +185,6 @@ class FrameProducer:
             depth_format=out.depth,
             lut_key=self.world_seed,
             texts=tuple(texts),
+            png_level=0 if out.png_compression == "none" else 1,
         )
         return rec, payload
