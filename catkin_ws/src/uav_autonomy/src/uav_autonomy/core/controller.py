@@ -50,6 +50,7 @@ import numpy.typing as npt
 
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError
 from uav_common.autopilot_modes import Autopilot, FlightMode, decode_custom_mode, mode_name
+from uav_common.validate import require_finite_vector
 
 __all__ = [
     "OFFBOARD_STATES",
@@ -281,18 +282,6 @@ class _Follower:
     finished: bool = False
 
 
-def _finite_vec(name: str, value: object, size: int) -> tuple[float, ...]:
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as err:
-        msg = f"{name}: expected {size} numbers, got {value!r}"
-        raise InvalidInputError(msg) from err
-    if arr.size != size or not np.isfinite(arr).all():
-        msg = f"{name}: expected {size} finite numbers, got {arr.tolist()}"
-        raise InvalidInputError(msg)
-    return tuple(float(v) for v in arr)
-
-
 @dataclass
 class _Targets:
     """Per-state targets, kept between steps."""
@@ -366,7 +355,11 @@ class WaypointController:
             if pattern.shape[0] == 0 or not np.isfinite(pattern).all():
                 msg = f"waypoints must be >= 1 finite [x, y, z] points, got {pattern.tolist()}"
                 raise InvalidInputError(msg)
-        stare = None if stare_at_enu_m is None else _finite_vec("stare_at", stare_at_enu_m, 3)
+        stare = (
+            None
+            if stare_at_enu_m is None
+            else require_finite_vector("stare_at", stare_at_enu_m, 3, error=InvalidInputError)
+        )
         if target is ControllerState.IDLE:
             self._release("IDLE requested: released control")
             return self._state
@@ -423,7 +416,7 @@ class WaypointController:
             InvalidInputError: NaN/inf position or yaw; nothing changes.
             InvalidTransitionError: via :meth:`request` when MANUAL cannot be entered.
         """
-        pos = _finite_vec("manual setpoint", position_enu_m, 3)
+        pos = require_finite_vector("manual setpoint", position_enu_m, 3, error=InvalidInputError)
         if yaw_enu_rad is not None and not math.isfinite(yaw_enu_rad):
             msg = f"manual yaw must be finite, got {yaw_enu_rad}"
             raise InvalidInputError(msg)
