@@ -62,6 +62,7 @@ PURE_COMMON = frozenset(
         "uav_common.geo",
         "uav_common.pointcloud",
         "uav_common.rotations",
+        "uav_common.validate",
         "uav_common.voxel_keys",
     }
 )

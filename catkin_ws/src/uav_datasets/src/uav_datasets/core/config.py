@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from uav_common.config import config_errors_as, from_mapping, load_yaml_mapping, to_mapping
+from uav_common.validate import require_non_negative, require_positive
 from uav_datasets.errors import DatasetConfigError
 from uav_sim_bridge.core.camera import CameraConfig, CameraModel
 from uav_sim_bridge.core.world_config import ObjectClass
@@ -126,12 +127,8 @@ class PositionMode:
     max_offset_m: float = 10.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.weight) and self.weight > 0):
-            msg = f"weight must be > 0, got {self.weight}"
-            raise ValueError(msg)
-        if not (math.isfinite(self.max_offset_m) and self.max_offset_m >= 0):
-            msg = f"max_offset_m must be >= 0, got {self.max_offset_m}"
-            raise ValueError(msg)
+        require_positive("weight", self.weight)
+        require_non_negative("max_offset_m", self.max_offset_m)
         if self.kind == "near_objects" and not self.classes:
             msg = f"kind near_objects needs 'classes' (one or more of {', '.join(LABEL_CLASSES)})"
             raise ValueError(msg)
@@ -178,9 +175,7 @@ class ViewpointSpec:
                     f"area_m {list(self.area_m)} must be [x_min, y_min, x_max, y_max] with x_min < x_max, y_min < y_max"
                 )
                 raise ValueError(msg)
-        if not (math.isfinite(self.margin_m) and self.margin_m >= 0):
-            msg = f"margin_m must be >= 0, got {self.margin_m}"
-            raise ValueError(msg)
+        require_non_negative("margin_m", self.margin_m)
         if not self.positions:
             msg = "positions must name at least one mode"
             raise ValueError(msg)
@@ -193,12 +188,8 @@ class ViewpointSpec:
         _range("altitude_agl_m", self.altitude_agl_m, 0.0, MAX_ALTITUDE_M, "m")
         _range("pitch_deg", self.pitch_deg, 0.0, 90.0, "deg (0 = horizon, 90 = nadir)")
         _range("yaw_deg", self.yaw_deg, -360.0, 720.0, "deg")
-        if not (math.isfinite(self.max_standoff_m) and self.max_standoff_m > 0):
-            msg = f"max_standoff_m must be > 0, got {self.max_standoff_m}"
-            raise ValueError(msg)
-        if not (math.isfinite(self.clearance_m) and self.clearance_m >= 0):
-            msg = f"clearance_m must be >= 0, got {self.clearance_m}"
-            raise ValueError(msg)
+        require_positive("max_standoff_m", self.max_standoff_m)
+        require_non_negative("clearance_m", self.clearance_m)
         if self.min_objects_in_view < 0 or self.max_attempts < 1:
             msg = "min_objects_in_view must be >= 0 and max_attempts >= 1"
             raise ValueError(msg)
@@ -218,9 +209,7 @@ class SplitSpec:
         if len(set(self.world_seeds)) != len(self.world_seeds):
             msg = f"world_seeds {list(self.world_seeds)} repeats a seed"
             raise ValueError(msg)
-        if not (math.isfinite(self.fraction) and self.fraction > 0):
-            msg = f"fraction must be > 0, got {self.fraction}"
-            raise ValueError(msg)
+        require_positive("fraction", self.fraction)
 
 
 def _default_splits() -> dict[str, SplitSpec]:
@@ -260,15 +249,10 @@ class FlightSpec:
         if (self.run is None) == (self.scenario is None):
             msg = "give exactly one of 'run' (a recorded run folder or bag) and 'scenario' (fly it now)"
             raise ValueError(msg)
-        if not (math.isfinite(self.time_limit_s) and self.time_limit_s > 0):
-            msg = f"time_limit_s must be > 0, got {self.time_limit_s}"
-            raise ValueError(msg)
-        if self.rate_hz is not None and not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            msg = f"rate_hz must be > 0, got {self.rate_hz}"
-            raise ValueError(msg)
-        if not (math.isfinite(self.min_altitude_agl_m) and self.min_altitude_agl_m >= 0):
-            msg = f"min_altitude_agl_m must be >= 0, got {self.min_altitude_agl_m}"
-            raise ValueError(msg)
+        require_positive("time_limit_s", self.time_limit_s)
+        if self.rate_hz is not None:
+            require_positive("rate_hz", self.rate_hz)
+        require_non_negative("min_altitude_agl_m", self.min_altitude_agl_m)
         if self.start_s < 0 or (self.end_s is not None and self.end_s <= self.start_s):
             msg = f"need 0 <= start_s < end_s, got start_s={self.start_s}, end_s={self.end_s}"
             raise ValueError(msg)
@@ -312,9 +296,8 @@ class LabelSpec:
         if not 0.0 <= self.min_visible_fraction <= 1.0:
             msg = f"min_visible_fraction must be within [0, 1], got {self.min_visible_fraction}"
             raise ValueError(msg)
-        if self.max_range_m is not None and not (math.isfinite(self.max_range_m) and self.max_range_m > 0):
-            msg = f"max_range_m must be > 0, got {self.max_range_m}"
-            raise ValueError(msg)
+        if self.max_range_m is not None:
+            require_positive("max_range_m", self.max_range_m)
 
     @property
     def class_list(self) -> tuple[ObjectClass, ...]:
