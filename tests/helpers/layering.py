@@ -172,7 +172,14 @@ def project_packages(repo: Path) -> list[Package]:
         frozenset({"uav_common", "uav_scenarios", "numpy", "scipy", "yaml", "matplotlib", "distributed", "dask"}),
         pkg,
     )
-    return [common, sitl, router, bridge, autonomy, perception, scenarios, campaigns]
+    src, pkg = catkin("uav_datasets")
+    datasets = Package(
+        "uav_datasets",
+        src,
+        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools"}),
+        pkg,
+    )
+    return [common, sitl, router, bridge, autonomy, perception, scenarios, campaigns, datasets]
 
 
 # ---------------------------------------------------------------------------------------------- parsing
