@@ -101,7 +101,7 @@ def format_stats_line(
 
 def _uniform(config: ImpairmentConfig, name: str, direction: str) -> random.Random:
     """The seeded generator of one endpoint's link in one direction (independent streams, same every run)."""
-    return random.Random(f"{config.seed}:{name}:{direction}")  # noqa: S311 - a simulation, not cryptography
+    return random.Random(f"{config.seed}:{name}:{direction}")
 
 
 class Router:
@@ -210,7 +210,8 @@ class Router:
         )
         if link is not None:
             _LOG.info(
-                "endpoint %s: lossy link (%s): loss %g %% (burst %g), delay %g ms + jitter %g ms, reorder %g %%, seed %d",
+                "endpoint %s: lossy link (%s): loss %g %% (burst %g), delay %g ms + jitter %g ms, "
+                "reorder %g %%, seed %d",
                 endpoint.name, link.direction.value, link.loss_pct, link.loss_burst, link.delay_ms, link.jitter_ms,
                 link.reorder_pct, link.seed,
             )  # fmt: skip
@@ -315,10 +316,8 @@ class Router:
 
     def _next_held_s(self) -> float:
         """Seconds until the next frame a lossy link holds is due (inf if none)."""
-        due = min(
-            (link.next_due_s for link in itertools.chain(self._link_in.values(), self._link_out.values())),
-            default=math.inf,
-        )
+        due = min((link.next_due_s for link in self._link_in.values()), default=math.inf)
+        due = min(due, min((link.next_due_s for link in self._link_out.values()), default=math.inf))
         return due - self._clock()
 
     def link_counters(self, slot: int) -> dict[str, dict[str, int]]:

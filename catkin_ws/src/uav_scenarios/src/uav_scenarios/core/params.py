@@ -21,6 +21,7 @@ import numpy.typing as npt
 from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower
 from uav_autonomy.errors import InvalidInputError
 from uav_common.config import deep_merge
+from uav_common.robot import RobotDescription
 from uav_scenarios.core.config import FEATURE_NAMES, DepthSource, MissionKind, Scenario, Strategy, TimeMode
 from uav_scenarios.errors import ScenarioError
 
@@ -154,6 +155,12 @@ def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     }
 
 
+def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The autopilot odometry node keeps config/autonomy.yaml's settings (``node_params.autopilot_odometry``
+    overrides them)."""
+    return {}
+
+
 def tracker(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     search = scenario.search
     return {
@@ -169,6 +176,7 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "feature_evaluator": features,
     "path_planner": planner,
     "waypoint_controller": controller,
+    "autopilot_odometry": autopilot_odometry,
     "map_server": map_server,
     "sim_bridge": sim_bridge,
     "mission_manager": mission_manager,
@@ -277,8 +285,11 @@ def sitl_capacity_mah(scenario: Scenario, sitl_config: Path) -> float:
     return float(value) if isinstance(value, int | float) else 4000.0
 
 
-def bridge_cameras(bridge_config: Mapping[str, Any], scenario: Scenario) -> dict[str, dict[str, float]]:
-    """The bridge's cameras for this scenario (its config file with ``node_params.sim_bridge`` merged).
+def bridge_cameras(
+    bridge_config: Mapping[str, Any], scenario: Scenario, robot: RobotDescription | None = None
+) -> dict[str, dict[str, float]]:
+    """The bridge's cameras for this scenario (its config file with ``node_params.sim_bridge`` merged), placed by
+    the robot description (``config/robot.yaml``).
 
     Returns name -> ``{pitch_deg, hfov_deg}`` (mount pitch: 90 = nadir; hfov from ``hfov_deg``, or from
     ``fx`` and ``width`` when the intrinsics are given instead).
@@ -286,14 +297,12 @@ def bridge_cameras(bridge_config: Mapping[str, Any], scenario: Scenario) -> dict
     import math  # noqa: PLC0415
 
     merged = deep_merge(bridge_config, scenario.node_params.get("sim_bridge", {}))
-    cams = merged.get("cameras") or {
-        "nadir": {"mount": {"rpy_deg": [0, 90, 0]}},
-        "forward": {"mount": {"rpy_deg": [0, 25, 0]}},
-    }
+    cams = merged.get("cameras") or {"nadir": {}, "forward": {}}
     out: dict[str, dict[str, float]] = {}
     for name, raw in cams.items():
         cam = raw or {}
-        rpy = (cam.get("mount") or {}).get("rpy_deg") or [0.0, 90.0 if name == "nadir" else 25.0, 0.0]
+        mount = robot.cameras.get(str(name)) if robot is not None else None
+        rpy = list(mount.rpy_deg) if mount is not None else [0.0, 90.0 if name == "nadir" else 25.0, 0.0]
         hfov = cam.get("hfov_deg")
         if hfov is None and cam.get("fx"):
             hfov = math.degrees(2.0 * math.atan(float(cam.get("width", 640)) / 2.0 / float(cam["fx"])))
