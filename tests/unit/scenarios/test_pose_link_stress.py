@@ -191,7 +191,7 @@ def test_pose_error_of_a_biased_estimate() -> None:
     xyz, yaw = circle(t)
     te = np.arange(1.0, 59.0, 0.1)
     exyz, eyaw = circle(te)
-    exyz = exyz + [3.0, -4.0, 0.0]  # 5 m horizontal bias
+    exyz = exyz + np.array([3.0, -4.0, 0.0])  # 5 m horizontal bias
     err = pose_error(t, xyz, yaw, est_t_s=te, est_xyz_m=exyz, est_yaw_rad=eyaw + math.radians(2.0))
     assert err.samples == len(te)
     assert err.position_mean_m == pytest.approx(5.0, abs=0.01)

@@ -12,15 +12,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_common.config import ConfigError, from_mapping, load_config, load_yaml_mapping
-from uav_common.robot import CameraMount, RobotDescription, load_robot_description
 from uav_common.geo import GeoPoint, LocalProjection
+from uav_common.robot import CameraMount, RobotDescription, load_robot_description
 from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras, resolve_world_path
 from uav_sim_bridge.core.camera import CameraModel
-from uav_sim_bridge.errors import SimBridgeConfigError
 from uav_sim_bridge.core.schedule import LockstepConfig, RateSchedule
 from uav_sim_bridge.core.sensor_noise import DepthNoiseConfig, PoseNoise, PoseNoiseConfig, degrade_depth
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.vehicle_state import home_from_fix, state_from_odometry
+from uav_sim_bridge.errors import SimBridgeConfigError
 
 
 def test_rate_schedule_fires_on_the_sim_time_grid() -> None:
