@@ -208,6 +208,11 @@ def test_watchdog_fresh_stale_invalid() -> None:
     dog.valid(13.6, 13.62, 102.31)
     assert dog.state(13.7, 102.4)[0] == EstimateState.OK
     assert (dog.valid_count, dog.invalid_count) == (4, 1)
+    # one NaN between two checks, a valid estimate right after it: still reported once
+    dog.invalid("a message with NaN/inf at 13.70 s")
+    dog.valid(13.72, 13.72, 102.42)
+    assert dog.state(13.75, 102.45) == (EstimateState.INVALID, "a message with NaN/inf at 13.70 s")
+    assert dog.state(13.76, 102.46)[0] == EstimateState.OK
 
 
 def test_autopilot_odometry_config_validation() -> None:

@@ -402,7 +402,8 @@ class EstimateWatchdog:
     stamped with. The estimate is stale once ``timeout_s`` has passed (and, with a wall clock, ``wall_floor_s``
     wall seconds: a lockstep simulation runs faster than real time, docs/autonomy.md) since the last fresh
     one arrived; it is invalid from the moment an estimate with NaN/inf (or one the autopilot flags as
-    failed) arrives until a valid one does.
+    failed) arrives until a valid one does, and :meth:`state` reports it at least once even when a valid one
+    followed at once (a single NaN between two checks still stops whoever flies on it).
     """
 
     timeout_s: float = 1.0
@@ -410,6 +411,7 @@ class EstimateWatchdog:
     _fresh_s: float | None = None
     _fresh_wall_s: float | None = None
     _invalid: str = ""
+    _invalid_unreported: str = ""
     valid_count: int = 0
     invalid_count: int = 0
     late_count: int = 0
@@ -436,11 +438,14 @@ class EstimateWatchdog:
         """An estimate that cannot be flown on (NaN/inf, failed) arrived."""
         self.invalid_count += 1
         self._invalid = reason
+        self._invalid_unreported = reason
 
     def state(self, now_s: float, now_wall_s: float | None = None) -> tuple[str, str]:
         """``(state, reason)``: :class:`EstimateState` and, unless OK, why."""
-        if self._invalid:
-            return EstimateState.INVALID, self._invalid
+        if self._invalid or self._invalid_unreported:
+            reason = self._invalid or self._invalid_unreported
+            self._invalid_unreported = ""
+            return EstimateState.INVALID, reason
         if self._fresh_s is None:
             return EstimateState.WAITING, "no valid estimate yet"
         age = now_s - self._fresh_s
