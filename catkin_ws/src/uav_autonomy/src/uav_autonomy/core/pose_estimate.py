@@ -23,6 +23,7 @@ Frames go through :mod:`uav_common.frames` only.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -107,6 +108,10 @@ class AutopilotOdometryConfig:
     odometry_rate_hz: float = 50.0
     #: ``auto``: without an ODOMETRY for this long, fall back to LOCAL_POSITION_NED + ATTITUDE_QUATERNION.
     odometry_fallback_s: float = 1.0
+    #: How the autopilot's stamps become ROS time: ``timesync`` (a real vehicle: TIMESYNC, else the arrival
+    #: envelope) or ``shared`` (the autopilot's clock *is* ROS time: the SITL, whose time since boot is the
+    #: simulation time ``/clock`` carries; TIMESYNC still runs and its offset is reported, not used).
+    time_sync: str = "timesync"
     #: TIMESYNC requests per second (0 = map the autopilot's time by arrival only).
     timesync_rate_hz: float = 2.0
     timesync_window: int = 20
@@ -123,6 +128,9 @@ class AutopilotOdometryConfig:
     def __post_init__(self) -> None:
         if self.source not in ("auto", "odometry", "local_position"):
             msg = f"source must be auto, odometry or local_position, got {self.source!r}"
+            raise ValueError(msg)
+        if self.time_sync not in ("timesync", "shared"):
+            msg = f"time_sync must be timesync (a real autopilot) or shared (the SITL), got {self.time_sync!r}"
             raise ValueError(msg)
         for name in ("odometry_rate_hz", "timesync_rate_hz"):
             value = getattr(self, name)
@@ -207,6 +215,12 @@ def _flat(matrix: FloatArray) -> tuple[float, ...]:
     return tuple(float(v) for v in np.asarray(matrix, dtype=np.float64).reshape(36))
 
 
+@functools.lru_cache(maxsize=8)
+def _assumed(assumed: AssumedAccuracy) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The assumed pose and twist covariances, flat (computed once per setting: this runs at 50 Hz)."""
+    return _flat(assumed.pose_covariance()), _flat(assumed.twist_covariance())
+
+
 _UNKNOWN_TWIST = tuple(float(v) for v in np.diag([1e6] * 6).reshape(36))
 
 
@@ -254,13 +268,14 @@ def estimate_from_odometry(
         msg = f"ODOMETRY covariance: {err}"
         raise InvalidInputError(msg) from err
     from_autopilot = pose_cov is not None
-    pose = pose_covariance_ned_to_enu(pose_cov) if pose_cov is not None else assumed.pose_covariance()
+    assumed_pose, assumed_twist = _assumed(assumed)
+    pose = _flat(pose_covariance_ned_to_enu(pose_cov)) if pose_cov is not None else assumed_pose
     if not twist_known:
         twist: tuple[float, ...] = _UNKNOWN_TWIST
     elif twist_cov is not None and child_frame_id in (_MAV_FRAME_BODY_FRD, _MAV_FRAME_BODY_NED):
         twist = _flat(twist_covariance_frd_to_flu(twist_cov))
     else:
-        twist = _flat(assumed.twist_covariance())
+        twist = assumed_twist
     p = ned_to_enu(position_ned_m)
     return PoseEstimate(
         t_autopilot_s=time_usec * 1e-6,
@@ -268,7 +283,7 @@ def estimate_from_odometry(
         q_enu_flu_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
         velocity_flu_mps=v,
         angular_flu_radps=w,
-        pose_covariance=_flat(pose),
+        pose_covariance=pose,
         twist_covariance=twist,
         covariance_from_autopilot=from_autopilot,
         source=SOURCE_ODOMETRY,
@@ -295,14 +310,15 @@ def estimate_from_local_position(
     velocity = rotate(quat_conjugate(q), ned_to_enu(np.asarray(velocity_ned_mps, dtype=np.float64)))
     v, w, twist_known = _twist(velocity, rates_frd_radps)
     p = ned_to_enu(position_ned_m)
+    assumed_pose, assumed_twist = _assumed(assumed)
     return PoseEstimate(
         t_autopilot_s=time_boot_ms * 1e-3,
         position_enu_m=_vec3(p),
         q_enu_flu_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
         velocity_flu_mps=v,
         angular_flu_radps=w,
-        pose_covariance=_flat(assumed.pose_covariance()),
-        twist_covariance=_flat(assumed.twist_covariance()) if twist_known else _UNKNOWN_TWIST,
+        pose_covariance=assumed_pose,
+        twist_covariance=assumed_twist if twist_known else _UNKNOWN_TWIST,
         covariance_from_autopilot=False,
         source=SOURCE_LOCAL_POSITION,
     )

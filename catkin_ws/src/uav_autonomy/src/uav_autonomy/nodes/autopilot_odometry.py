@@ -4,10 +4,11 @@ ROS interface:
 
 Publishes:
     ``~odom_topic`` (nav_msgs/Odometry, default ``/uav/autopilot/odom``): ``odom -> base_link``, stamped with
-    the autopilot's own time of the estimate mapped onto ROS time (TIMESYNC, see
-    :mod:`uav_autonomy.core.pose_estimate`), with its covariances (the autopilot's, or the configured
+    the autopilot's own time of the estimate mapped onto ROS time (``time_sync: timesync``: TIMESYNC, see
+    :mod:`uav_autonomy.core.pose_estimate`; ``shared``: the SITL, whose clock is ROS time), with its covariances (the autopilot's, or the configured
     assumed accuracy when it gives none); twist in ``base_link``. Only new, finite estimates, in time order.
-    ``/tf``: ``odom -> base_link`` for every published estimate; ``/tf_static``: ``map -> odom`` (identity: the
+    ``/tf``: ``odom -> base_link`` for every estimate (also one that arrived after a newer one: tf keeps its
+    samples sorted, the odometry topic does not go back in time); ``/tf_static``: ``map -> odom`` (identity: the
     autopilot's local frame is anchored at home by its GNSS fusion, so ``map`` and ``odom`` coincide; a
     SLAM or VIO front end would publish the correction here).
     ``~status`` (uav_msgs/EstimateStatus) at ``status_rate_hz`` and on every change of state: OK, WAITING,
@@ -23,7 +24,12 @@ Parameters:
     Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 Messages are read by a thread that waits on the socket, so an estimate is published as soon as it arrives
-(no polling timer in between).
+(no polling timer in between). Each wake-up drains the socket and publishes the estimates that were
+waiting, in order: every one of them normally (the map server interpolates the tf between them, so a
+gap costs accuracy while the vehicle turns), but when the node has fallen behind (a lockstep simulation
+running many times faster than real time on a loaded machine) it skips those more than
+``BACKLOG_STALE_TIMEOUTS`` stale timeouts behind the newest (counted as ``superseded``) instead of working
+through a backlog.
 """
 
 from __future__ import annotations
@@ -61,6 +67,8 @@ _ODOMETRY_ID = 331
 _SET_MESSAGE_INTERVAL = 511
 _INTERVAL_RETRY_S = 5.0
 _LINK_TIMEOUT_S = 2.0
+#: A read holding estimates this many stale timeouts older than its newest is a backlog: those are skipped.
+BACKLOG_STALE_TIMEOUTS = 3.0
 
 
 class AutopilotOdometryNode:
@@ -81,6 +89,8 @@ class AutopilotOdometryNode:
         )
         self._lock = threading.Lock()
         self._attitude: tuple[tuple[float, float, float, float], tuple[float, float, float]] | None = None
+        self._pending: list[object] = []  # the ODOMETRY and LOCAL_POSITION_NED of this wake-up, in order
+        self.superseded = 0
         self._last_odometry_s: float | None = None
         self._pending_ts1: dict[int, float] = {}
         self._last_timesync_s = -math.inf
@@ -125,6 +135,7 @@ class AutopilotOdometryNode:
                 now, wall = rospy.get_time(), time.monotonic()
                 with self._lock:
                     self.link.poll(now, wall)
+                    self._estimate_pending(now, wall)
                     self._send_periodic(now)
             except UavAutonomyError as err:  # the socket could not be reopened: say so, keep trying
                 rospy.logerr_throttle(10.0, f"autopilot_odometry: {err}")
@@ -161,10 +172,23 @@ class AutopilotOdometryNode:
             q = (float(m.q1), float(m.q2), float(m.q3), float(m.q4))  # type: ignore[attr-defined]
             rates = (float(m.rollspeed), float(m.pitchspeed), float(m.yawspeed))  # type: ignore[attr-defined]
             self._attitude = (q, rates)
-        elif mtype == "ODOMETRY":
-            self._on_odometry(msg, now, wall)
-        elif mtype == "LOCAL_POSITION_NED":
-            self._on_local_position(msg, now, wall)
+        elif mtype in ("ODOMETRY", "LOCAL_POSITION_NED"):
+            self._pending.append(msg)
+
+    def _estimate_pending(self, now: float, wall: float | None) -> None:
+        """The estimates this wake-up read (the socket is drained), in order, shedding a backlog (module doc)."""
+        pending, self._pending = self._pending, []
+        if now <= 0.0 or not pending:
+            return
+        newest = max(_stamp_s(m) for m in pending)
+        shed = BACKLOG_STALE_TIMEOUTS * self.cfg.stale_timeout_s
+        for msg in pending:
+            if newest - _stamp_s(msg) > shed:
+                self.superseded += 1
+            elif msg.get_type() == "ODOMETRY":  # type: ignore[attr-defined]
+                self._on_odometry(msg, now, wall)
+            else:
+                self._on_local_position(msg, now, wall)
 
     def _on_odometry(self, m: object, now: float, wall: float | None) -> None:
         if self.cfg.source == "local_position":
@@ -217,19 +241,25 @@ class AutopilotOdometryNode:
     def _publish(self, est: PoseEstimate, now: float, wall: float | None) -> None:
         cfg = self.cfg
         self.sync.on_arrival(est.t_autopilot_s, now)
-        stamp = self.sync.to_local(est.t_autopilot_s)
+        stamp = est.t_autopilot_s if cfg.time_sync == "shared" else self.sync.to_local(est.t_autopilot_s)
         if not math.isfinite(stamp):
             return
-        if stamp <= self._last_stamp_s:
-            self._out_of_order += 1  # a reordered or repeated estimate: never go back in time
+        if stamp == self._last_stamp_s:
+            self._out_of_order += 1  # the same estimate again
             return
-        self._last_stamp_s = stamp
-        self.watchdog.valid(stamp, now, wall)
-        self._source = est.source
-        self._from_autopilot = est.covariance_from_autopilot
+        in_order = stamp > self._last_stamp_s
         ros_stamp = rospy.Time.from_sec(stamp)
-        msg = odometry_msg(est, Header(stamp=ros_stamp, frame_id=cfg.odom_frame), cfg.base_frame)
-        self.pub_odom.publish(msg)
+        if in_order:
+            # The odometry topic never goes back in time; a reordered (older) estimate still goes to tf below,
+            # which keeps its samples sorted: the map server interpolates between them.
+            self._last_stamp_s = stamp
+            self.watchdog.valid(stamp, now, wall)
+            self._source = est.source
+            self._from_autopilot = est.covariance_from_autopilot
+            msg = odometry_msg(est, Header(stamp=ros_stamp, frame_id=cfg.odom_frame), cfg.base_frame)
+            self.pub_odom.publish(msg)
+        else:
+            self._out_of_order += 1
         tf = TransformStamped()
         tf.header = Header(stamp=ros_stamp, frame_id=cfg.odom_frame)
         tf.child_frame_id = cfg.base_frame
@@ -250,7 +280,7 @@ class AutopilotOdometryNode:
                 state=state,
                 reason=reason,
                 source=self._source,
-                time_sync=self.sync.method,
+                time_sync="shared" if self.cfg.time_sync == "shared" else self.sync.method,
                 time_offset_s=self.sync.offset_s,
                 time_sync_rtt_s=self.sync.rtt_s,
                 age_s=now - self._last_stamp_s if math.isfinite(self._last_stamp_s) else math.nan,
@@ -260,6 +290,7 @@ class AutopilotOdometryNode:
                 invalid=self.watchdog.invalid_count,
                 late=self.watchdog.late_count,
                 out_of_order=self._out_of_order,
+                superseded=self.superseded,
             )
         self.pub_status.publish(status)
         if (state, reason.split(" for ")[0]) != self._reported:
@@ -272,6 +303,13 @@ class AutopilotOdometryNode:
             rospy.logwarn(text + " (the autonomy must not fly on it)")
         else:
             rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time by {self.sync.method})"))
+
+
+def _stamp_s(msg: object) -> float:
+    """The autopilot's time of an ODOMETRY (``time_usec``) or LOCAL_POSITION_NED (``time_boot_ms``)."""
+    if hasattr(msg, "time_usec"):
+        return float(msg.time_usec) * 1e-6
+    return float(msg.time_boot_ms) * 1e-3  # type: ignore[attr-defined]
 
 
 def main() -> None:

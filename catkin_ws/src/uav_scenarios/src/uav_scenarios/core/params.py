@@ -156,9 +156,15 @@ def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
 
 def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
-    """The autopilot odometry node keeps config/autonomy.yaml's settings (``node_params.autopilot_odometry``
-    overrides them)."""
-    return {}
+    """The autopilot odometry node: config/autonomy.yaml's settings, with the SITL's clock shared.
+
+    The SITL's time since boot (ODOMETRY's ``time_usec``) *is* the simulation time ``/clock`` carries, so the
+    stamps need no mapping (``time_sync: shared``). TIMESYNC still runs and its offset is reported: in lockstep
+    ROS time moves in ``time.step_s`` jumps, so TIMESYNC there is only as good as half a step (the rostest of the
+    node checks TIMESYNC against an autopilot whose clock is 1000 s off). ``node_params.autopilot_odometry``
+    overrides this.
+    """
+    return {"time_sync": "shared"}
 
 
 def tracker(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
