@@ -94,7 +94,9 @@ def router_conf(sitl_tcp: int, ports: dict[str, int], log_dir: Path) -> str:
         "offboard": "LossPercent = 50\nLossBurst = 40\nLinkDirection = in\nLinkSeed = 4\n",
         "gcs": "LossPercent = 50\nLossBurst = 6\nLinkDirection = in\nLinkSeed = 4\n",
     }
-    text = f"[General]\nLog = {log_dir}\nStatsInterval = 0.5\n[TcpEndpoint sitl]\nAddress = 127.0.0.1\nPort = {sitl_tcp}\n"
+    text = (
+        f"[General]\nLog = {log_dir}\nStatsInterval = 0.5\n[TcpEndpoint sitl]\nAddress = 127.0.0.1\nPort = {sitl_tcp}\n"
+    )
     for name, port in ports.items():
         text += f"[UdpEndpoint {name}]\nMode = Normal\nAddress = 127.0.0.1\nPort = {port}\n{fading.get(name, '')}"
     return text

@@ -63,7 +63,9 @@ class AutopilotEstimate(unittest.TestCase):
             ],
         )  # fmt: skip
         # the autopilot booted 1000 s before "now": its stamps are 1000 s behind ROS time
-        cls.peer = FakePx4(cls.port, estimate_port=cls.est_port, boot_offset_s=time.monotonic() - time.time() + BOOT_OFFSET_S)
+        cls.peer = FakePx4(
+            cls.port, estimate_port=cls.est_port, boot_offset_s=time.monotonic() - time.time() + BOOT_OFFSET_S
+        )
         cls.peer.start()
         cls.odoms: list[tuple[float, Odometry]] = []
         cls.status: EstimateStatus | None = None

@@ -254,3 +254,17 @@ def test_the_scorer_reports_the_pose_error_and_what_happened_to_the_estimate() -
     plain = RunScorer(spec=ScoringSpec(), truth=SceneTruth(bounds_m=(-1.0, -1.0, 1.0, 1.0)))
     assert plain.summary(1.0)["pose_estimate"]["estimates"] == 0
     assert math.isnan(plain.sample(1.0)["pose_error_m"])
+
+
+def test_uav_run_lays_stress_presets_over_the_scenario_and_refuses_bad_ones(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from uav_scenarios.cli.run import main  # noqa: PLC0415
+
+    assert main([str(LOITER), "--stress", "no_such_preset", "--runs-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "stress: no preset 'no_such_preset'" in err
+    assert "lossy_link" in err  # it lists what there is
+    assert main([str(LOITER), "--stress", "gusty", "--runs-dir", str(tmp_path)]) == 2
+    assert "wind: wind and turbulence is not yet simulated by the SITL" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())  # nothing was started, no run folder made
