@@ -28,9 +28,9 @@ import pytest
 from e2e.sitl.harness import Gcs, run_sitl
 from helpers.procs import Proc, free_port, free_udp_port, wait_for_port
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink_router.core.impairment import ImpairmentConfig, LinkDirection, LinkImpairment
-from pymavlink.dialects.v20 import common as mavlink2
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 M = mavlink2

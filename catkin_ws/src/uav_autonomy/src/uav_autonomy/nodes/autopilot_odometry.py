@@ -5,8 +5,9 @@ ROS interface:
 Publishes:
     ``~odom_topic`` (nav_msgs/Odometry, default ``/uav/autopilot/odom``): ``odom -> base_link``, stamped with
     the autopilot's own time of the estimate mapped onto ROS time (``time_sync: timesync``: TIMESYNC, see
-    :mod:`uav_autonomy.core.pose_estimate`; ``shared``: the SITL, whose clock is ROS time), with its covariances (the autopilot's, or the configured
-    assumed accuracy when it gives none); twist in ``base_link``. Only new, finite estimates, in time order.
+    :mod:`uav_autonomy.core.pose_estimate`; ``shared``: the SITL, whose clock is ROS time), with its
+    covariances (the autopilot's, or the configured assumed accuracy when it gives none); twist in
+    ``base_link``. Only new, finite estimates, in time order.
     ``/tf``: ``odom -> base_link`` for every estimate (also one that arrived after a newer one: tf keeps its
     samples sorted, the odometry topic does not go back in time); ``/tf_static``: ``map -> odom`` (identity: the
     autopilot's local frame is anchored at home by its GNSS fusion, so ``map`` and ``odom`` coincide; a
