@@ -29,7 +29,7 @@ Results (``bench/results/latest.jsonl``):
 * ``scenario.loiter.rtf_autopilot_lossy``: the same loiter flown, mapped and planned on the autopilot's own
   estimate (``pose_source: autopilot``: the autopilot odometry node, ODOMETRY over the router, tf
   ``map -> odom -> base_link``) over the ``lossy_link`` stress preset (20 % of the frames lost each way on the
-  controller's and the odometry node's links, 30 ms delay, 20 ms jitter, 1 % reordered); baseline: the default
+  controller's link, 30 ms delay, 20 ms jitter, 1 % reordered; the GCS link fading); baseline: the default
   loiter's in the same run. Issue 23 allows it to lose at most 10 % (ratio >= 0.9). Its notes give the pose
   error, the map precision of both, the frames dropped and the autopilot odometry node's CPU. Wind joins it
   when the SITL simulates wind. ``--skip-autopilot-lossy`` leaves it out.

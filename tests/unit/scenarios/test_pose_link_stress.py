@@ -136,6 +136,7 @@ def test_runnable_stress_presets_lay_over_a_scenario(preset: str, tmp_path: Path
     if preset == "lossy_link":
         assert s.link.endpoints["controller"].loss_pct == 20.0
         assert s.link.endpoints["gcs"].loss_burst == 3.0
+        assert "odometry" not in s.link.endpoints  # a mapping companion is wired to the autopilot
 
 
 @pytest.mark.parametrize(
