@@ -5,8 +5,8 @@ ODOMETRY into the odometry and the ``map -> odom -> base_link`` tf that the map 
 planner and the controller's pose watch use; the sim bridge publishes no pose tf), the SITL's noisy
 estimator (a per-run bias drawn from its seed, plus a wandering error), and the ``lossy_link`` stress preset
 (20 % of the frames lost each way on the controller's link, delay, jitter, reordering) with the odometry
-node's link as lossy (the scenario adds it). The run must fly, map and score the pose error it flew with; it must either complete (its time
-limit) or fail safe with the reason in its events.
+node's link as lossy (the scenario adds it). The run must fly, map and score the pose error it flew with;
+it must either complete (its time limit) or fail safe with the reason in its events.
 """
 
 from __future__ import annotations
