@@ -61,6 +61,7 @@ PURE_COMMON = frozenset(
         "uav_common.frames",
         "uav_common.geo",
         "uav_common.pointcloud",
+        "uav_common.robot",
         "uav_common.rotations",
         "uav_common.validate",
         "uav_common.voxel_keys",
@@ -140,7 +141,7 @@ def project_packages(repo: Path) -> list[Package]:
     autonomy = Package(
         "uav_autonomy",
         src,
-        frozenset({"uav_common", *NUMERIC, "pymavlink", *ROS_COMMON}),
+        frozenset({"uav_common", *NUMERIC, "pymavlink", *ROS_COMMON, "tf2_ros"}),
         pkg,
     )
     src, pkg = catkin("uav_perception")
