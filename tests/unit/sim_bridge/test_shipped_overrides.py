@@ -12,11 +12,11 @@ from typing import Any
 
 import pytest
 import yaml
+from helpers.paths import REPO
+
 from uav_common.config import deep_merge, from_mapping, load_yaml_mapping
 from uav_common.robot import load_robot_description
 from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras
-
-from helpers.paths import REPO
 
 
 def _sim_bridge_overrides(node: Any, where: str) -> list[tuple[str, dict[str, Any]]]:
