@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import to_mapping
+from uav_common.config import from_mapping, to_mapping
 from uav_common.paths import config_dir
 from uav_common.robot import RobotDescription
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
@@ -29,6 +29,7 @@ __all__ = [
     "PublishConfig",
     "SimBridgeConfig",
     "SimLinkConfig",
+    "bridge_config",
     "default_cameras",
     "mounted_cameras",
     "resolve_world_path",
@@ -194,3 +195,17 @@ def mounted_cameras(cameras: Any, robot: RobotDescription, *, source: str) -> di
             raise SimBridgeConfigError(msg) from err
         out[name] = {**(cam or {}), "mount": {"xyz_m": list(mount.xyz_m), "rpy_deg": list(mount.rpy_deg)}}
     return out
+
+
+def bridge_config(data: dict[str, Any], robot: RobotDescription, *, source: str) -> SimBridgeConfig:
+    """The bridge's configuration from its merged settings (``config/sim_bridge.yaml`` with any overrides) and the
+    robot description that places its cameras: what the node runs with, and what anything re-creating a run's
+    cameras (the data engine) must use.
+
+    Raises:
+        SimBridgeConfigError: a camera sets ``mount`` or has none in the robot description.
+        ConfigError: an unknown key or a wrong value (named with ``source``).
+    """
+    merged = dict(data)
+    merged["cameras"] = mounted_cameras(merged.get("cameras"), robot, source=source)
+    return from_mapping(SimBridgeConfig, merged, source=source)

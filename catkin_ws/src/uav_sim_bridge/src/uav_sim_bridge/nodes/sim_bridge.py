@@ -66,7 +66,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
-from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
+from uav_common.config import config_errors_as, deep_merge, load_yaml_mapping
 from uav_common.geo import GeoPoint
 from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
@@ -77,7 +77,7 @@ from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras
+from uav_sim_bridge.config import SimBridgeConfig, bridge_config
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
@@ -169,8 +169,7 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
             data["detections"] = det
         robot_path = Path(params.robot_description).expanduser() if params.robot_description else None
         robot = load_robot_description(robot_path or config_file("robot.yaml"))
-        data["cameras"] = mounted_cameras(data.get("cameras"), robot, source=str(path))
-        return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
+        return bridge_config(data, robot, source=f"{path} (+ ~params)")
 
 
 def _nested(keys: tuple[str, ...], value: Any) -> dict[str, Any]:
