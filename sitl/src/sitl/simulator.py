@@ -24,15 +24,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sitl.config import SitlConfig, StreamProfile, TimeMode
+from sitl.config import SitlConfig, StreamProfile, TimeMode, params_for_config
 from sitl.core.params import ParamTable
 from sitl.core.protocol import MavSeverity
-from sitl.errors import ParamFileError, SitlError
+from sitl.errors import ParamFileError, SitlConfigError, SitlError
 from sitl.shell.gateway import Gateway
 from sitl.shell.links import MavLink, TcpServerLink, UdpLink, load_signing_key
 from sitl.shell.param_file import ParamFile
 from sitl.shell.sim_link import SimLink
-from sitl.vehicle import Vehicle, params_for_config
+from sitl.vehicle import Vehicle
 
 __all__ = ["RunSummary", "Simulator"]
 
@@ -67,8 +67,8 @@ class Simulator:
         try:
             params = params_for_config(cfg)
         except ValueError as err:
-            msg = f"params.defaults / failsafe: {err}"
-            raise SitlError(msg) from err
+            msg = f"params.defaults / failsafe ({cfg.autopilot.value} personality): {err}"
+            raise SitlConfigError(msg) from err
         self._load_params(params, reset=reset_params)
         self.vehicle = Vehicle(cfg, params)
         self.vehicle.autopilot.wall_scale = 0.0 if (cfg.time.mode is TimeMode.LOCKSTEP) else 1.0 / cfg.time.speed
@@ -255,7 +255,12 @@ class Simulator:
         wall0 = self._clock()
         t0 = self.vehicle.t_s
         steps0 = self.vehicle.steps
-        log.info("simulation running: %s, ports %s", self._describe_time(), self.ports())
+        log.info(
+            "simulation running: %s autopilot, %s, ports %s",
+            self.cfg.personality.label,
+            self._describe_time(),
+            self.ports(),
+        )
         if self.cfg.time.mode is TimeMode.LOCKSTEP:
             self._run_lockstep(max_sim_time_s)
         else:
@@ -347,7 +352,7 @@ class Simulator:
         log.info(
             "t_sim=%.1f s mode=%s armed=%s landed=%s battery=%.1f V %.0f%% (%.0f mAh)",
             self.vehicle.t_s,
-            ap.mode.px4_name,
+            ap.mode_name,
             ap.armed,
             ap.landed,
             b.voltage_v,

@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
-from sitl.core.params import ParamTable
+from typing import Protocol
 
 __all__ = [
     "ControlGains",
@@ -37,6 +36,10 @@ NAN = math.nan
 
 Quat = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
+
+
+class _ParamLookup(Protocol):
+    def __getitem__(self, name: str, /) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,8 @@ class ControlGains:
     tilt_max_rad: float
 
     @classmethod
-    def from_params(cls, p: ParamTable) -> ControlGains:
+    def from_params(cls, p: _ParamLookup) -> ControlGains:
+        """The gains from PX4's parameter names (the ArduCopter personality maps its own names onto these)."""
         return cls(
             xy_p=p["MPC_XY_P"],
             z_p=p["MPC_Z_P"],

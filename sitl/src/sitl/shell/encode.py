@@ -16,23 +16,19 @@ from sitl.core.control import Setpoint
 from sitl.core.failsafe import FailsafeKind
 from sitl.core.modes import FlightMode
 from sitl.core.params import ParamTable, encode_wire_value
+from sitl.core.personality import PX4
 from sitl.core.protocol import MissionState, MsgId
 from sitl.shell.links import mavlink
 from sitl.vehicle import Vehicle
 
 __all__ = ["AUTOPILOT_CAPABILITIES", "FLIGHT_SW_VERSION", "Encoder", "statustext_chunks"]
 
-AUTOPILOT_CAPABILITIES = (
-    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-)
+#: What AUTOPILOT_VERSION advertises for the default (PX4) personality: exactly what is implemented
+#: (missions INT and float, COMMAND_INT, bytewise parameters, position and attitude targets, fences, MAVLink 2;
+#: no rally points, FTP, terrain or flight termination). The ArduPilot personality's are in its Personality.
+AUTOPILOT_CAPABILITIES = PX4.capabilities
 # PX4 version encoding: major << 24 | minor << 16 | patch << 8 | type (255 = release). We claim 1.14.0.
-FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255
+FLIGHT_SW_VERSION = PX4.flight_sw_version
 
 # Sensors we simulate; PREARM_CHECK in health means "armable" (MAVSDK health.is_armable).
 _S = mavlink
@@ -104,6 +100,7 @@ class Encoder:
         self.load_permille = 0
         self.errors_comm = 0
         self.factory = mavlink.MAVLink(None)
+        self.personality = vehicle.autopilot.personality
         self._chunk_id = 0
         self._builders = self._table()
 
@@ -188,11 +185,12 @@ class Encoder:
     # ------------------------------------------------------------------ messages
     def heartbeat(self) -> Any:
         ap = self.v.autopilot
+        p = self.personality
         return self.factory.heartbeat_encode(
             mavlink.MAV_TYPE_QUADROTOR,
-            mavlink.MAV_AUTOPILOT_PX4,
-            ap.mode.base_mode(armed=ap.armed),
-            ap.mode.custom_mode,
+            p.mav_autopilot,
+            p.base_mode(ap.mode, armed=ap.armed),
+            p.custom_mode(ap.mode),
             int(ap.system_status),
         )
 
@@ -207,8 +205,10 @@ class Encoder:
         if ap.crashed:
             health &= ~(mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
         present = SENSORS
-        params = self.v.params
-        fence_on = int(params["GF_ACTION"]) != 0 and (params["GF_MAX_HOR_DIST"] > 0 or params["GF_MAX_VER_DIST"] > 0)
+        settings = ap.settings
+        fence_on = settings.fence_action is not None and (
+            settings.fence_radius_m > 0 or settings.fence_max_alt_m > 0 or not ap.fence_store.fence.empty
+        )
         if fence_on:
             present |= mavlink.MAV_SYS_STATUS_GEOFENCE
             if FailsafeKind.GEOFENCE not in ap.failsafe.active:
@@ -235,10 +235,10 @@ class Encoder:
         cell_mv = _clamp_int(b.cell_voltage_v * 1000.0, 0, UINT16_MAX - 1)
         voltages = [cell_mv if i < cells else UINT16_MAX for i in range(10)]
         ext = [cell_mv if 10 + i < cells else 0 for i in range(4)]
-        params = self.v.params
-        if b.remaining <= params["BAT_CRIT_THR"]:
+        settings = self.v.autopilot.settings
+        if b.remaining <= settings.battery_critical_remaining:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
-        elif b.remaining <= params["BAT_LOW_THR"]:
+        elif b.remaining <= settings.battery_low_remaining:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_LOW
         else:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_OK
@@ -388,8 +388,15 @@ class Encoder:
 
     def mission_current(self) -> Any:
         ap = self.v.autopilot
-        total = len(ap.mission_store)
+        count = len(ap.mission_store)
         state = ap.mission_state
+        if self.personality.mission_home_item:
+            # ArduPilot: seq counts from 1 (item 0 is home); total excludes home; mission_mode 1 in AUTO else 0
+            total = max(count - 1, 0)
+            seq = min(ap.mission_current_seq, max(count - 1, 0))
+            mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 0
+            return self.factory.mission_current_encode(seq, total, int(state), mode)
+        total = count
         seq = (
             min(ap.mission_current_seq, max(total - 1, 0)) if state is not MissionState.COMPLETE else max(total - 1, 0)
         )
@@ -399,8 +406,8 @@ class Encoder:
     def autopilot_version(self) -> Any:
         uid = (0x5549_4C53 << 32) | self.system_id  # "UILS" + sysid: stable per instance
         return self.factory.autopilot_version_encode(
-            AUTOPILOT_CAPABILITIES,
-            FLIGHT_SW_VERSION,
+            self.personality.capabilities,
+            self.personality.flight_sw_version,
             0,
             0,
             0,
@@ -416,7 +423,7 @@ class Encoder:
         spec = params.spec(name)
         return self.factory.param_value_encode(
             name.encode("ascii"),
-            encode_wire_value(params[name], spec.type),
+            encode_wire_value(params[name], spec.type, bytewise=self.personality.int_params_bytewise),
             int(spec.type),
             len(params),
             params.index_of(name),

@@ -18,6 +18,7 @@ from sitl.config import StreamProfile
 from sitl.core.autopilot import ManualInput
 from sitl.core.commands import CommandRequest, handle_command
 from sitl.core.mission import MissionItem
+from sitl.core.navigator import FollowTarget
 from sitl.core.mission_transfer import (
     MissionAckOut,
     MissionCountOut,
@@ -25,14 +26,20 @@ from sitl.core.mission_transfer import (
     MissionRequestOut,
     Peer,
 )
-from sitl.core.modes import BASE_MODE_CUSTOM_MODE_ENABLED, mode_from_custom_mode
-from sitl.core.offboard import OffboardRejection, setpoint_from_global_int, setpoint_from_local_ned
+from sitl.core.modes import BASE_MODE_CUSTOM_MODE_ENABLED
+from sitl.core.offboard import (
+    OffboardRejection,
+    attitude_setpoint,
+    setpoint_from_global_int,
+    setpoint_from_local_ned,
+)
 from sitl.core.params import decode_wire_value
 from sitl.core.protocol import MavMissionResult, MavResult, MavSeverity, MsgId
 from sitl.core.telemetry import NORMAL_RATES_HZ, ONBOARD_RATES_HZ, StreamScheduler
 from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import MavLink, Received, mavlink
 from sitl.vehicle import Vehicle
+from uav_common.geo import GeoPoint
 
 __all__ = ["Gateway"]
 
@@ -67,6 +74,7 @@ class Gateway:
     ) -> None:
         self.v = vehicle
         self.ap = vehicle.autopilot
+        self.personality = vehicle.autopilot.personality
         self.links = {name: link for name, (link, _) in links.items()}
         max_rate = 1.0 / vehicle.dt_s
         self.streams = {
@@ -95,6 +103,8 @@ class Gateway:
             "MISSION_SET_CURRENT": self._on_mission_set_current,
             "SET_POSITION_TARGET_LOCAL_NED": self._on_set_position_target_local_ned,
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_set_position_target_global_int,
+            "SET_ATTITUDE_TARGET": self._on_set_attitude_target,
+            "FOLLOW_TARGET": self._on_follow_target,
             "MANUAL_CONTROL": self._on_manual_control,
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
@@ -145,7 +155,12 @@ class Gateway:
             link.send(msg)
 
     def _on_heartbeat(self, msg: Any, route: Hashable, wall_s: float) -> None:
-        if msg.type in _DATALINK_TYPES:
+        gcs_sysid = self.ap.settings.datalink_sysid
+        if gcs_sysid:
+            # ArduCopter: only the heartbeat of system SYSID_MYGCS is the ground station's
+            if msg.get_srcSystem() == gcs_sysid and msg.type != mavlink.MAV_TYPE_QUADROTOR:
+                self.ap.datalink_heard(self.v.t_s, wall_s)
+        elif msg.type in _DATALINK_TYPES:
             self.ap.datalink_heard(self.v.t_s, wall_s)
 
     # ------------------------------------------------------------------ commands
@@ -193,7 +208,7 @@ class Gateway:
         if not msg.base_mode & BASE_MODE_CUSTOM_MODE_ENABLED:
             self.ap.say(MavSeverity.CRITICAL, "SET_MODE without custom mode is not supported")
             return
-        mode = mode_from_custom_mode(msg.custom_mode)
+        mode = self.personality.mode_from_custom_mode(msg.custom_mode)
         if mode is None:
             self.ap.say(MavSeverity.CRITICAL, f"Mode change denied: unsupported custom_mode {msg.custom_mode}")
             return
@@ -221,6 +236,10 @@ class Gateway:
             name = _text(msg.param_id)
             if name not in params:
                 self._stats(route).rx_invalid_values += 1
+                hint = self.personality.unknown_param_hint(name)
+                if hint:  # a script written for the other autopilot: say so (real autopilots stay silent)
+                    self.ap.say(MavSeverity.WARNING, hint)
+                    self.flush_events()
                 return
         self.send_to(route, self.encoder.param_value(params, name))
 
@@ -231,10 +250,12 @@ class Gateway:
         name = _text(msg.param_id)
         if name not in params:
             self._stats(route).rx_invalid_values += 1
-            self.ap.say(MavSeverity.WARNING, f"Parameter {name[:16]!r} does not exist")
+            hint = self.personality.unknown_param_hint(name)
+            self.ap.say(MavSeverity.WARNING, hint or f"Parameter {name[:16]!r} does not exist")
             self.flush_events()
             return
-        value = decode_wire_value(msg.param_value, msg.param_type, params.spec(name))
+        bytewise = self.personality.int_params_bytewise
+        value = decode_wire_value(msg.param_value, msg.param_type, params.spec(name), bytewise=bytewise)
         if value is None:
             outcome_ok, reason = False, f"{name}: cannot decode value of type {msg.param_type}"
         else:
@@ -369,6 +390,26 @@ class Gateway:
             projection=self.v.projection,
         )
         self._offboard(sp, route, wall_s)
+
+    def _on_set_attitude_target(self, msg: Any, route: Hashable, wall_s: float) -> None:
+        if not self._for_us(msg, route):
+            return
+        q = (msg.q[0], msg.q[1], msg.q[2], msg.q[3])
+        rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
+        self._offboard(attitude_setpoint(msg.type_mask, q, rates, msg.thrust), route, wall_s)
+
+    def _on_follow_target(self, msg: Any, route: Hashable, wall_s: float) -> None:
+        """FOLLOW_TARGET (MAVSDK FollowMe, QGC): the target's position (and velocity, when estimated)."""
+        if not msg.est_capabilities & 1 or not (msg.lat or msg.lon):
+            return
+        if abs(msg.lat) > 900_000_000 or abs(msg.lon) > 1_800_000_000 or not math.isfinite(msg.alt):
+            self._stats(route).rx_invalid_values += 1
+            return
+        n, e, d = self.v.projection.to_ned(GeoPoint(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt))
+        vel = tuple(float(v) for v in msg.vel)
+        if not all(math.isfinite(v) for v in vel):  # PX4 uses the velocity whenever it is given
+            vel = (0.0, 0.0, 0.0)
+        self.ap.follow_target_update(FollowTarget(self.v.t_s, (n, e, d), (vel[0], vel[1], vel[2])))
 
     def _offboard(self, sp: Any, route: Hashable, wall_s: float) -> None:
         if isinstance(sp, OffboardRejection):

@@ -220,7 +220,7 @@ class SimLink:
         ap = v.autopilot
         controls = [*v.duty, *([0.0] * 12)]
         act = f.hil_actuator_controls_encode(
-            sim_time_us(s.t_s), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
+            sim_time_us(s.t_s), controls, ap.personality.base_mode(ap.mode, armed=ap.armed), 1 if self.lockstep else 0
         )
         # the three messages of one instant share a datagram (a MAVLink parser reads them in turn)
         frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))

@@ -24,6 +24,7 @@ from uav_common.config import config_errors_as, load_config
 from uav_scenarios.errors import ScenarioConfigError
 
 __all__ = [
+    "AutopilotKind",
     "AutonomySpec",
     "DepthSource",
     "MapBackend",
@@ -69,6 +70,13 @@ class Strategy(enum.Enum):
 class TimeMode(enum.Enum):
     FREE = "free"
     LOCKSTEP = "lockstep"
+
+
+class AutopilotKind(enum.Enum):
+    """Which autopilot the simulated vehicle is (``uav-sitl --autopilot``); the controller adapts by itself."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
 
 
 class MapBackend(enum.Enum):
@@ -372,6 +380,8 @@ class Scenario:
     mission: MissionKind
     strategy: Strategy = Strategy.AUTONOMOUS
     description: str = ""
+    #: The simulated autopilot: ``px4`` or ``ardupilot`` (ArduCopter's modes, parameters and GUIDED takeoff).
+    autopilot: AutopilotKind = AutopilotKind.PX4
     world: WorldSpec = field(default_factory=WorldSpec)
     map: MapSpec = field(default_factory=MapSpec)
     depth_source: DepthSource = DepthSource.GROUND_TRUTH
