@@ -19,6 +19,7 @@ from sitl.core.params import ParamTable, encode_wire_value
 from sitl.core.personality import PX4
 from sitl.core.protocol import MissionState, MsgId
 from sitl.shell.links import mavlink
+from sitl.shell.wire import WirePackers
 from sitl.vehicle import Vehicle
 
 __all__ = ["AUTOPILOT_CAPABILITIES", "FLIGHT_SW_VERSION", "Encoder", "statustext_chunks"]
@@ -100,6 +101,7 @@ class Encoder:
         self.load_permille = 0
         self.errors_comm = 0
         self.factory = mavlink.MAVLink(None)
+        self.fast = WirePackers()
         self.personality = vehicle.autopilot.personality
         self._chunk_id = 0
         self._builders = self._table()
@@ -142,27 +144,27 @@ class Encoder:
 
     def extended_sys_state(self) -> Any:
         ap = self.v.autopilot
-        return self.factory.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
+        return self.fast.extended_sys_state(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
 
     def attitude(self) -> Any:
         s = self.v.est.full
         r, p, y = s.euler_rad
-        return self.factory.attitude_encode(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
+        return self.fast.attitude(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
 
     def attitude_quaternion(self) -> Any:
         s = self.v.est.full
-        return self.factory.attitude_quaternion_encode(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
+        return self.fast.attitude_quaternion(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
 
     def local_position_ned(self) -> Any:
         e = self.v.est
-        return self.factory.local_position_ned_encode(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
+        return self.fast.local_position_ned(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
 
     def altitude(self) -> Any:
         e = self.v.est
         amsl = e.full.alt_amsl_m
         rel = -e.pos_ned_m[2]
         agl = e.full.height_above_ground_m
-        return self.factory.altitude_encode(self.time_usec, amsl, amsl, rel, rel, agl, agl)
+        return self.fast.altitude(self.time_usec, amsl, amsl, rel, rel, agl, agl)
 
     def vfr_hud(self) -> Any:
         e = self.v.est
@@ -170,11 +172,11 @@ class Encoder:
         speed = math.hypot(vn, ve)
         heading = int(math.degrees(e.yaw_rad) % 360.0) % 360
         throttle = _clamp_int(100.0 * self.v.autopilot.thrust, 0, 100)
-        return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
+        return self.fast.vfr_hud(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
 
     def system_time(self) -> Any:
         unix_us = round(self.unix_epoch_s * 1e6) + sim_time_us(self.v.t_s)
-        return self.factory.system_time_encode(unix_us, self.time_boot_ms)
+        return self.fast.system_time(unix_us, self.time_boot_ms)
 
     def gps_global_origin(self) -> Any:
         h = self.v.home
@@ -186,7 +188,7 @@ class Encoder:
     def heartbeat(self) -> Any:
         ap = self.v.autopilot
         p = self.personality
-        return self.factory.heartbeat_encode(
+        return self.fast.heartbeat(
             mavlink.MAV_TYPE_QUADROTOR,
             p.mav_autopilot,
             p.base_mode(ap.mode, armed=ap.armed),
@@ -213,7 +215,7 @@ class Encoder:
             present |= mavlink.MAV_SYS_STATUS_GEOFENCE
             if FailsafeKind.GEOFENCE not in ap.failsafe.active:
                 health |= mavlink.MAV_SYS_STATUS_GEOFENCE
-        return self.factory.sys_status_encode(
+        return self.fast.sys_status(
             present,
             present,
             health,
@@ -244,7 +246,7 @@ class Encoder:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_OK
         remaining_mah = b.remaining * self.v.cfg.battery.capacity_mah
         time_remaining = int(remaining_mah * 3.6 / b.current_a) if b.current_a > 0.5 else 0
-        return self.factory.battery_status_encode(
+        return self.fast.battery_status(
             0,
             mavlink.MAV_BATTERY_FUNCTION_ALL,
             mavlink.MAV_BATTERY_TYPE_LIPO,
@@ -263,7 +265,7 @@ class Encoder:
         e = self.v.est
         s = e.full
         vn, ve, vd = e.vel_ned_mps
-        return self.factory.global_position_int_encode(
+        return self.fast.global_position_int(
             self.time_boot_ms,
             round(s.lat_deg * 1e7),
             round(s.lon_deg * 1e7),
@@ -282,7 +284,7 @@ class Encoder:
         ok = e.gps_ok
         speed = math.hypot(vn, ve)
         cog = _cdeg(math.atan2(ve, vn)) if speed > 0.2 else UINT16_MAX
-        return self.factory.gps_raw_int_encode(
+        return self.fast.gps_raw_int(
             self.time_usec,
             mavlink.GPS_FIX_TYPE_3D_FIX if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
             round(s.lat_deg * 1e7),
@@ -303,7 +305,7 @@ class Encoder:
 
     def home_position(self) -> Any:
         h = self.v.home
-        return self.factory.home_position_encode(
+        return self.fast.home_position(
             round(h.lat_deg * 1e7),
             round(h.lon_deg * 1e7),
             round(h.alt_amsl_m * 1000.0),
@@ -331,7 +333,7 @@ class Encoder:
         mz = r02 * mn + r12 * me + r22 * md
         pressure = _isa_pressure_hpa(s.alt_amsl_m)
         temperature = 15.0 - 0.0065 * s.alt_amsl_m
-        return self.factory.highres_imu_encode(
+        return self.fast.highres_imu(
             self.time_usec, ax, ay, az, *s.rates_frd_radps, mx, my, mz, pressure, 0.0, s.alt_amsl_m, temperature, 0x1FFF
         )
 
@@ -350,7 +352,7 @@ class Encoder:
         by = 2 * (x * y - w * z) * vn + (1 - 2 * (x * x + z * z)) * ve + 2 * (y * z + w * x) * vd
         bz = 2 * (x * z + w * y) * vn + 2 * (y * z - w * x) * ve + (1 - 2 * (x * x + y * y)) * vd
         unknown = [math.nan] + [0.0] * 20
-        return self.factory.odometry_encode(
+        return self.fast.odometry(
             sim_time_us(s.t_s),
             mavlink.MAV_FRAME_LOCAL_NED,
             mavlink.MAV_FRAME_BODY_FRD,
@@ -382,7 +384,7 @@ class Encoder:
         if not math.isfinite(sp.yaw_rad):
             mask |= 1024
         mask |= 64 | 128 | 256 | 2048
-        return self.factory.position_target_local_ned_encode(
+        return self.fast.position_target_local_ned(
             self.time_boot_ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *pos, *vsp, 0.0, 0.0, 0.0, yaw, 0.0
         )
 
@@ -395,13 +397,13 @@ class Encoder:
             total = max(count - 1, 0)
             seq = min(ap.mission_current_seq, max(count - 1, 0))
             mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 0
-            return self.factory.mission_current_encode(seq, total, int(state), mode)
+            return self.fast.mission_current(seq, total, int(state), mode)
         total = count
         seq = (
             min(ap.mission_current_seq, max(total - 1, 0)) if state is not MissionState.COMPLETE else max(total - 1, 0)
         )
         mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 2
-        return self.factory.mission_current_encode(seq, total, int(state), mode)
+        return self.fast.mission_current(seq, total, int(state), mode)
 
     def autopilot_version(self) -> Any:
         uid = (0x5549_4C53 << 32) | self.system_id  # "UILS" + sysid: stable per instance

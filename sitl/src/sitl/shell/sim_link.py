@@ -201,7 +201,7 @@ class SimLink:
         g = s.gravity_mps2
         ax, ay, az = s.specific_force_frd_mps2
         speed_cms = round(math.sqrt(vn * vn + ve * ve + vd * vd) * 100.0)
-        hil = f.hil_state_quaternion_encode(
+        hil = self.encoder.fast.hil_state_quaternion(
             sim_time_us(s.t_s),
             list(s.q_wxyz),
             *s.rates_frd_radps,
@@ -219,7 +219,7 @@ class SimLink:
         )
         ap = v.autopilot
         controls = [*v.duty, *([0.0] * 12)]
-        act = f.hil_actuator_controls_encode(
+        act = self.encoder.fast.hil_actuator_controls(
             sim_time_us(s.t_s), controls, ap.personality.base_mode(ap.mode, armed=ap.armed), 1 if self.lockstep else 0
         )
         # the three messages of one instant share a datagram (a MAVLink parser reads them in turn)
