@@ -54,6 +54,8 @@ class Simulator:
     """Owns the vehicle, the links and the clock. ``run()`` until ``stop()``."""
 
     POLL_INTERVAL_UNPACED_S = 0.002
+    # load and statistics bookkeeping: every this many free-running steps (a few wall milliseconds at most)
+    HOUSEKEEPING_EVERY_STEPS = 25
     # telemetry frames are batched into datagrams and flushed at least this often (wall clock)
     FLUSH_INTERVAL_S = 0.002
 
@@ -283,9 +285,15 @@ class Simulator:
         ref_sim = self.vehicle.t_s
         last_poll = ref_wall
         end = math.inf if max_sim_time_s is None else self.vehicle.t_s + max_sim_time_s
-        while not self._stop.is_set() and self.vehicle.t_s < end - 1e-9:
+        paced = math.isfinite(speed)
+        vehicle = self.vehicle
+        stopped = self._stop.is_set
+        step = self._step
+        housekeeping_every = self.HOUSEKEEPING_EVERY_STEPS
+        count = 0
+        while not stopped() and vehicle.t_s < end - 1e-9:
             now = clock()
-            if math.isfinite(speed):
+            if paced:
                 due = ref_wall + (self.vehicle.t_s + dt - ref_sim) / speed
                 if now < due:
                     self.poll(due - now)
@@ -299,8 +307,11 @@ class Simulator:
             elif now - last_poll >= self.POLL_INTERVAL_UNPACED_S:
                 self.poll(0.0)
                 last_poll = now
-            self._step(now)
-            self._housekeeping(now)
+            step(now)
+            count += 1
+            if count >= housekeeping_every:
+                count = 0
+                self._housekeeping(now)
 
     def _run_lockstep(self, max_sim_time_s: float | None) -> None:
         sim = self.sim_link

@@ -351,8 +351,7 @@ class Encoder:
         bx = (1 - 2 * (y * y + z * z)) * vn + 2 * (x * y + w * z) * ve + 2 * (x * z - w * y) * vd
         by = 2 * (x * y - w * z) * vn + (1 - 2 * (x * x + z * z)) * ve + 2 * (y * z + w * x) * vd
         bz = 2 * (x * z + w * y) * vn + 2 * (y * z - w * x) * ve + (1 - 2 * (x * x + y * y)) * vd
-        unknown = [math.nan] + [0.0] * 20
-        return self.fast.odometry(
+        return self.fast.odometry_unknown_covariance(
             sim_time_us(s.t_s),
             mavlink.MAV_FRAME_LOCAL_NED,
             mavlink.MAV_FRAME_BODY_FRD,
@@ -362,9 +361,6 @@ class Encoder:
             by,
             bz,
             *s.rates_frd_radps,
-            unknown,
-            unknown,
-            0,
             mavlink.MAV_ESTIMATOR_TYPE_NAIVE if truth else mavlink.MAV_ESTIMATOR_TYPE_UNKNOWN,
             100,
         )

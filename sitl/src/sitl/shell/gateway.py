@@ -34,7 +34,7 @@ from sitl.core.offboard import (
     setpoint_from_local_ned,
 )
 from sitl.core.params import decode_wire_value
-from sitl.core.protocol import MavMissionResult, MavResult, MavSeverity, MsgId
+from sitl.core.protocol import MavCmd, MavMissionResult, MavResult, MavSeverity, MsgId
 from sitl.core.telemetry import NORMAL_RATES_HZ, ONBOARD_RATES_HZ, StreamScheduler
 from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import MavLink, Received, mavlink
@@ -77,10 +77,13 @@ class Gateway:
         self.personality = vehicle.autopilot.personality
         self.links = {name: link for name, (link, _) in links.items()}
         max_rate = 1.0 / vehicle.dt_s
-        self.streams = {
-            name: StreamScheduler(ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate)
-            for name, (_, profile) in links.items()
+        # links of the same profile share one scheduler (their streams are due at the same instants) until a
+        # SET_MESSAGE_INTERVAL on one of them gives that link its own copy (see _own_scheduler)
+        by_profile = {
+            profile: StreamScheduler(ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate)
+            for _, profile in links.values()
         }
+        self.streams = {name: by_profile[profile] for name, (_, profile) in links.items()}
         self.system_id = system_id
         self.component_id = component_id
         self.encoder = Encoder(vehicle, unix_epoch_s=unix_epoch_s, system_id=system_id)
@@ -111,7 +114,23 @@ class Gateway:
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
         }
         self._next_due_s = 0.0
-        self._stream_links = [(self.streams[name], self.links[name]) for name in self.streams]
+        self._stream_links: list[tuple[StreamScheduler, list[MavLink]]] = []
+        self._group_streams()
+
+    def _group_streams(self) -> None:
+        groups: dict[int, tuple[StreamScheduler, list[MavLink]]] = {}
+        for name, sched in self.streams.items():
+            groups.setdefault(id(sched), (sched, []))[1].append(self.links[name])
+        self._stream_links = list(groups.values())
+
+    def _own_scheduler(self, link_name: str) -> StreamScheduler:
+        """The link's scheduler, first copied if other links share it (SET_MESSAGE_INTERVAL is per link)."""
+        sched = self.streams[link_name]
+        if sum(1 for other in self.streams.values() if other is sched) > 1:
+            sched = sched.copy()
+            self.streams[link_name] = sched
+            self._group_streams()
+        return sched
 
     # ================================================================== inbound
     def handle(self, rx: Received, wall_s: float) -> None:
@@ -181,8 +200,8 @@ class Gateway:
         self._command(CommandRequest(msg.command, params, frame=msg.frame), msg, route)
 
     def _command(self, req: CommandRequest, msg: Any, route: Hashable) -> None:
-        streams = self.streams[route[0]] if isinstance(route, tuple) else None
-        assert streams is not None
+        assert isinstance(route, tuple)
+        streams = self._own_scheduler(route[0]) if req.command == MavCmd.SET_MESSAGE_INTERVAL else self.streams[route[0]]
         if any(math.isinf(p) for p in req.params):
             self._stats(route).rx_invalid_values += 1
         outcome = handle_command(req, self.ap, streams, self.v.t_s)
@@ -465,7 +484,7 @@ class Gateway:
         if t >= self._next_due_s:
             cache: dict[int, Any] = {}
             next_due = math.inf
-            for sched, link in self._stream_links:
+            for sched, links in self._stream_links:
                 if t >= sched.next_due_s:
                     for msg_id in sched.due(t):
                         m = cache.get(msg_id)
@@ -473,13 +492,16 @@ class Gateway:
                             m = self.encoder.build(msg_id)
                             cache[msg_id] = m
                         if m is not None:
-                            link.send(m)
-                next_due = min(next_due, sched.next_due_s)
+                            for link in links:
+                                link.send(m)
+                due = sched.next_due_s
+                next_due = due if due < next_due else next_due
             self._next_due_s = next_due
-        if self.ap.events_pending:
+        ap = self.ap
+        if ap.heartbeat_due or ap.statustexts or ap.mission_progress.reached or ap.mission_current_changed:
             self.flush_events()
-        if self.ap.mission_server.upload_in_progress:
-            for out in self.ap.mission_server.tick(wall_s):
+        if ap.mission_server.upload_in_progress:
+            for out in ap.mission_server.tick(wall_s):
                 self._send_mission([out])
 
     def flush_events(self) -> None:

@@ -342,11 +342,17 @@ class UdpLink(MavLink):
         Like PX4's mavlink module, several frames share one datagram (up to
         :attr:`BATCH_BYTES`); every MAVLink parser reads them one after another.
         """
-        buf = self.pack(msg)
+        enc = self.encoder
+        if self.signing_key is None and isinstance(msg, WireMessage):  # the streamed telemetry: framed here
+            buf = msg.frame(enc.seq, enc.srcSystem, enc.srcComponent)
+            enc.seq = (enc.seq + 1) % 256
+        else:
+            buf = self.pack(msg)
         if route is None:
-            self._batch += buf
+            batch = self._batch
+            batch += buf
             self._batch_count += 1
-            if len(self._batch) >= self.BATCH_BYTES:
+            if len(batch) >= self.BATCH_BYTES:
                 self.flush()
             return
         if isinstance(route, tuple) and route[0] == self.name:

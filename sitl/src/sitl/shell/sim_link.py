@@ -39,6 +39,8 @@ class Grant:
 class SimLink:
     """Ground-truth publisher and lockstep/collision/terrain receiver."""
 
+    EXPIRY_CHECK_S = 0.25
+
     def __init__(
         self,
         vehicle: Vehicle,
@@ -77,6 +79,8 @@ class SimLink:
         self.system_id = system_id
         self._clock = clock
         self._peers: dict[tuple[str, int], float] = {}
+        self._peer_list: list[tuple[str, int]] = []
+        self._last_expiry_s = -math.inf
         self._next_heartbeat_s = 0.0
         self._last_status = -1
         self.grants: list[Grant] = []
@@ -154,11 +158,16 @@ class SimLink:
     # ------------------------------------------------------------------ outbound
     def _live_peers(self) -> list[tuple[str, int]]:
         now = self._clock()
-        for peer, last in list(self._peers.items()):
-            if now - last > self.peer_timeout_s:
-                del self._peers[peer]
-                self.link.forget_peer(("sim", peer))
-        return list(self._peers)
+        if now - self._last_expiry_s >= self.EXPIRY_CHECK_S:  # the state goes out at 50 Hz: check 4 times a second
+            self._last_expiry_s = now
+            for peer, last in list(self._peers.items()):
+                if now - last > self.peer_timeout_s:
+                    del self._peers[peer]
+                    self.link.forget_peer(("sim", peer))
+            self._peer_list = list(self._peers)
+        elif len(self._peer_list) != len(self._peers):
+            self._peer_list = list(self._peers)
+        return self._peer_list
 
     def _send(self, msg: Any, peers: list[tuple[str, int]]) -> None:
         if not peers:
@@ -218,7 +227,7 @@ class SimLink:
             _i16(az / g * 1000.0),
         )
         ap = v.autopilot
-        controls = [*v.duty, *([0.0] * 12)]
+        controls = [*v.duty, *_TWELVE_ZEROS]
         act = self.encoder.fast.hil_actuator_controls(
             sim_time_us(s.t_s), controls, ap.personality.base_mode(ap.mode, armed=ap.armed), 1 if self.lockstep else 0
         )
@@ -237,5 +246,10 @@ class SimLink:
         self.sock.close()
 
 
+_TWELVE_ZEROS = (0.0,) * 12
+
+
 def _i16(value: float) -> int:
-    return int(max(-32767, min(32767, round(value))))
+    r = round(value)  # min() / max() written out (same result): six of these per state message
+    r = 32767 if 32767 < r else r
+    return int(-32767 if -32767 > r else r)

@@ -60,12 +60,17 @@ def frame_payload(payload: bytes, msg_id: int, crc_extra: int, seq: int, system_
 class WireMessage:
     """A packed payload of one message type; decodes to pymavlink's object only when a field is read."""
 
-    __slots__ = ("_decoded", "cls", "payload")
+    __slots__ = ("_decoded", "body", "cls", "msg_id", "payload", "trailer")
 
     def __init__(self, cls: type, payload: bytes) -> None:
         self.cls = cls
         self.payload = payload
         self._decoded: Any = None
+        c: Any = cls
+        self.msg_id: int = c.id
+        # what every frame of this message shares: the truncated payload and the CRC's trailing CRC_EXTRA
+        self.body = payload.rstrip(b"\0") or payload[:1]
+        self.trailer = self.body + bytes((c.crc_extra,))
 
     def get_type(self) -> str:
         return str(self.cls.msgname)  # type: ignore[attr-defined]
@@ -74,8 +79,10 @@ class WireMessage:
         return int(self.cls.id)  # type: ignore[attr-defined]
 
     def frame(self, seq: int, system_id: int, component_id: int) -> bytes:
-        cls: Any = self.cls
-        return frame_payload(self.payload, cls.id, cls.crc_extra, seq, system_id, component_id)
+        msg_id = self.msg_id
+        body = self.body
+        header = _HEADER_V2.pack(253, len(body), 0, 0, seq, system_id, component_id, msg_id & 0xFFFF, msg_id >> 16)
+        return header + body + mcrf4xx(header[1:] + self.trailer, 0xFFFF).to_bytes(2, "little")
 
     def decoded(self) -> Any:
         """pymavlink's message object for this payload."""
@@ -124,6 +131,13 @@ def _packer(cls: Any) -> Callable[..., WireMessage]:
     return packer
 
 
+_ODOMETRY = mavlink.MAVLink_odometry_message
+_ODOMETRY_HEAD = struct.Struct("<Qfff4fffffff")
+_ODOMETRY_TAIL = struct.Struct("<BBBBb")
+#: ODOMETRY's two covariances when unknown (first element NaN, the rest 0), packed once.
+_UNKNOWN_COVARIANCES = struct.pack("<21f21f", *([float("nan")] + [0.0] * 20) * 2)
+
+
 class WirePackers:
     """``packers.<message name lowercase>(...)`` for every :data:`STREAMED` message."""
 
@@ -131,6 +145,29 @@ class WirePackers:
         for name in STREAMED:
             cls = mavlink.mavlink_map[getattr(mavlink, f"MAVLINK_MSG_ID_{name}")]
             setattr(self, name.lower(), _packer(cls))
+
+    @staticmethod
+    def odometry_unknown_covariance(  # noqa: PLR0917 - ODOMETRY's fields in order
+        time_usec: int,
+        frame_id: int,
+        child_frame_id: int,
+        x: float,
+        y: float,
+        z: float,
+        q: list[float],
+        vx: float,
+        vy: float,
+        vz: float,
+        rollspeed: float,
+        pitchspeed: float,
+        yawspeed: float,
+        estimator_type: int,
+        quality: int,
+    ) -> WireMessage:
+        """ODOMETRY with both covariances unknown and reset_counter 0 (the SITL's): the constant part pre-packed."""
+        head = _ODOMETRY_HEAD.pack(time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed)
+        tail = _ODOMETRY_TAIL.pack(frame_id, child_frame_id, 0, estimator_type, quality)
+        return WireMessage(_ODOMETRY, head + _UNKNOWN_COVARIANCES + tail)
 
     def __getattr__(self, name: str) -> Callable[..., WireMessage]:  # for mypy: the packers are set in __init__
         msg = f"no fast packer for {name}"
