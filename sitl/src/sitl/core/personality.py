@@ -163,10 +163,7 @@ class Personality:
         """Which personality has ``name`` when this one does not (empty when neither has it)."""
         other = self.other()
         if any(spec.name == name for spec in other.param_specs):
-            return (
-                f"{name} is {other.label}'s name; this vehicle runs the {self.label} personality "
-                f"(start uav-sitl with --autopilot {other.name} to use {other.label} parameter names)"
-            )
+            return f"{name} is a {other.label} parameter, not {self.label}'s: start uav-sitl --autopilot {other.name}"
         return ""
 
     def param_table(self, defaults: Mapping[str, float] | None = None) -> ParamTable:
