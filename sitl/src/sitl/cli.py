@@ -153,7 +153,7 @@ def load_from_args(args: argparse.Namespace) -> SitlConfig:
     return load_sitl_config(path, overrides_from_args(args))
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: PLR0911 - one exit per failure kind
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=getattr(logging, args.log_level),

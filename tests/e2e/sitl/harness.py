@@ -6,9 +6,9 @@ import os
 import re
 import shutil
 import socket
+import struct
 import subprocess
 import threading
-import struct
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager

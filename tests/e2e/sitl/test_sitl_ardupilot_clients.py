@@ -18,10 +18,9 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.info import InfoAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
-from pymavlink import mavutil
-
 from mavsdk_grpc import System
 from mavsdk_grpc.telemetry import FlightMode as GrpcFlightMode
+from pymavlink import mavutil
 
 pytestmark = pytest.mark.slow
 

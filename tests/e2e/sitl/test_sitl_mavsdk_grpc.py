@@ -11,9 +11,10 @@ MAVSDK's own telemetry.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from importlib.resources import files
 from pathlib import Path
 from typing import Any, TypeVar
@@ -21,7 +22,6 @@ from typing import Any, TypeVar
 import pytest
 from e2e.sitl.harness import run_sitl
 from helpers.procs import Proc, free_port
-
 from mavsdk_grpc import System
 from mavsdk_grpc.action import OrbitYawBehavior
 from mavsdk_grpc.follow_me import Config as FollowConfig
@@ -80,7 +80,7 @@ async def settle(seconds: float) -> None:
     await asyncio.sleep(seconds)
 
 
-async def fly(grpc_port: int, log: list[str]) -> dict[str, Any]:  # noqa: PLR0915 - one flight, step by step
+async def fly(grpc_port: int, log: list[str]) -> dict[str, Any]:
     seen: dict[str, Any] = {}
     drone = System(mavsdk_server_address="127.0.0.1", port=grpc_port)
     t0 = time.monotonic()
@@ -124,7 +124,9 @@ async def fly(grpc_port: int, log: list[str]) -> dict[str, Any]:  # noqa: PLR091
     assert math.dist((pv.position.north_m, pv.position.east_m), (-20.0, 10.0)) < 3.0, pv
     assert pv.position.down_m == pytest.approx(-18.0, abs=1.0)
     assert 5.0 < max_speed < 7.0, f"DO_CHANGE_SPEED 6 m/s: flew at up to {max_speed:.1f} m/s"
-    log.append(f"mission {progress.current}/{progress.total} done at N{pv.position.north_m:.1f} E{pv.position.east_m:.1f}")
+    log.append(
+        f"mission {progress.current}/{progress.total} done at N{pv.position.north_m:.1f} E{pv.position.east_m:.1f}"
+    )
 
     # --- offboard attitude: face north, then nose 5 degrees down with a little more thrust, then level, stop
     await drone.offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.225))
@@ -160,14 +162,12 @@ async def fly(grpc_port: int, log: list[str]) -> dict[str, Any]:  # noqa: PLR091
         assert math.hypot(n, e - 25.0) == pytest.approx(15.0, abs=1.0)
         angles.append(math.atan2(e - 25.0, n))
         await asyncio.sleep(0.25)
-    turned = sum(math.remainder(b - a, math.tau) for a, b in zip(angles, angles[1:], strict=False))
+    turned = sum(math.remainder(b - a, math.tau) for a, b in itertools.pairwise(angles))
     assert turned > 0.3, f"positive radius circles clockwise; turned {turned:.2f} rad"
     log.append(f"orbit: on the circle, turned {math.degrees(turned):.0f} deg in 3 s")
 
     # --- follow-me: a target walking north-east of the vehicle
-    await drone.follow_me.set_config(
-        FollowConfig(8.0, 6.0, 0.1, FollowConfig.FollowAltitudeMode.CONSTANT, 8.0, 180.0)
-    )
+    await drone.follow_me.set_config(FollowConfig(8.0, 6.0, 0.1, FollowConfig.FollowAltitudeMode.CONSTANT, 8.0, 180.0))
     await drone.follow_me.start()
     await wait_for(drone.telemetry.flight_mode, lambda m: m == FlightMode.FOLLOW_ME, "FOLLOW_ME", 10)
     for k in range(30):

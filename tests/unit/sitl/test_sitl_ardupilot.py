@@ -106,7 +106,8 @@ def test_rtl_climbs_to_rtl_alt_waits_and_lands_then_disarms() -> None:
         if not ap.armed:
             break
     assert 14.5 < top < 16.0, f"RTL_ALT is 15 m: climbed to {top:.1f} m"
-    assert not ap.armed and ap.landed
+    assert not ap.armed
+    assert ap.landed
     assert math.hypot(*pos(r.v)[:2]) < 1.0
 
 

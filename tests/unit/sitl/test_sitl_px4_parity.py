@@ -4,6 +4,7 @@ and AUTOPILOT_VERSION advertising what is implemented. Through the real gateway 
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -55,7 +56,7 @@ def upload(r: Rig, items: list[object], mission_type: int) -> list[int]:
     return [a.type for a in r.gcs.of_type("MISSION_ACK")]
 
 
-def fence_item(r: Rig, seq: int, cmd: int, p1: float, n: float, e: float) -> object:
+def fence_item(r: Rig, seq: int, cmd: int, p1: float, n: float, e: float) -> object:  # noqa: PLR0917
     g = LocalProjection(r.v.home).to_geo(n, e, 0.0)
     return r.client.mav.mission_item_int_encode(
         1, 1, seq, M.MAV_FRAME_GLOBAL_INT, cmd, 0, 1, p1, 0, 0, 0, round(g.lat_deg * 1e7), round(g.lon_deg * 1e7), 0,
@@ -194,7 +195,7 @@ def test_do_orbit_circles_and_reports_px4s_orbit_mode() -> None:
         assert -d == pytest.approx(12.0, abs=0.5)
         angles.append(math.atan2(e, n - 20.0))
         assert math.hypot(*r.v.truth().vel_ned_mps[:2]) == pytest.approx(3.0, abs=0.4)
-    turned = sum(math.remainder(b - a, math.tau) for a, b in zip(angles, angles[1:], strict=False))
+    turned = sum(math.remainder(b - a, math.tau) for a, b in itertools.pairwise(angles))
     assert turned > 0.5, "positive radius: clockwise seen from above"
     # the nose points at the centre (yaw behaviour 0)
     n, e, _ = pos(r.v)
@@ -239,7 +240,7 @@ def test_qgc_mission_items_are_accepted_and_flown() -> None:
     ap = r.v.autopilot
     proj = LocalProjection(r.v.home)
 
-    def nav(seq: int, cmd: int, n: float, e: float, alt: float, p1: float = 0.0) -> object:
+    def nav(seq: int, cmd: int, n: float, e: float, alt: float, p1: float = 0.0) -> object:  # noqa: PLR0917
         g = proj.to_geo(n, e, 0.0)
         return r.client.mav.mission_item_int_encode(
             1, 1, seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, cmd, 0, 1, p1, 0, 0, math.nan,
@@ -280,9 +281,10 @@ def test_autopilot_version_advertises_what_is_implemented() -> None:
         r = Rig(autopilot=autopilot)
         caps = Cap(r.gw.encoder.autopilot_version().capabilities)
         assert caps == personality.capabilities
-        for implemented in (Cap.MISSION_INT, Cap.COMMAND_INT, Cap.SET_ATTITUDE_TARGET, Cap.MISSION_FENCE,
-                            Cap.SET_POSITION_TARGET_LOCAL_NED, Cap.SET_POSITION_TARGET_GLOBAL_INT, Cap.MAVLINK2):  # fmt: skip
-            assert implemented in caps
+        implemented = (Cap.MISSION_INT, Cap.COMMAND_INT, Cap.SET_ATTITUDE_TARGET, Cap.MISSION_FENCE, Cap.MAVLINK2,
+                       Cap.SET_POSITION_TARGET_LOCAL_NED, Cap.SET_POSITION_TARGET_GLOBAL_INT)  # fmt: skip
+        for cap in implemented:
+            assert cap in caps
         for missing in (Cap.MISSION_RALLY, Cap.FTP, Cap.TERRAIN, Cap.FLIGHT_TERMINATION, Cap.COMPASS_CALIBRATION):
             assert missing not in caps
     assert Cap.PARAM_ENCODE_BYTEWISE in Cap(PX4.capabilities)

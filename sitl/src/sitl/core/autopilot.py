@@ -109,7 +109,7 @@ _FAILSAFE_MODES = {
 class Autopilot:
     """One vehicle's autopilot. See the module docstring for the calling protocol."""
 
-    def __init__(
+    def __init__(  # noqa: PLR0915 - the state of one autopilot
         self,
         *,
         params: ParamTable,
@@ -324,7 +324,7 @@ class Autopilot:
         self.say(MavSeverity.INFO, "Armed by external command" + (" (forced)" if force else ""))
         return MavResult.ACCEPTED
 
-    def prearm_failure(self) -> str | None:
+    def prearm_failure(self) -> str | None:  # noqa: PLR0911 - one return per check
         s = self.settings
         if self.personality.needs_position(self.mode) and (self.est is None or not self.est.gps_ok):
             return "no GPS position"
@@ -507,7 +507,7 @@ class Autopilot:
             self._reposition = None
         return result
 
-    def orbit(  # noqa: PLR0913
+    def orbit(  # noqa: PLR0911
         self,
         *,
         radius_m: float,
@@ -536,7 +536,9 @@ class Autopilot:
             behaviour = int(yaw_behaviour)
         est = self.est
         previous = self._orbit if self.mode is FlightMode.ORBIT else None
-        radius = abs(radius_m) if math.isfinite(radius_m) else (previous.radius_m if previous else OrbitTask.RADIUS_MIN_M)
+        radius = (
+            abs(radius_m) if math.isfinite(radius_m) else (previous.radius_m if previous else OrbitTask.RADIUS_MIN_M)
+        )
         clockwise = radius_m > 0 if math.isfinite(radius_m) else (previous.velocity_mps >= 0 if previous else True)
         radius = min(max(radius, OrbitTask.RADIUS_MIN_M), self.settings.orbit_radius_max_m)
         speed = abs(velocity_mps) if math.isfinite(velocity_mps) else (abs(previous.velocity_mps) if previous else 1.0)
@@ -554,12 +556,12 @@ class Autopilot:
             centre = previous.centre
         else:
             centre = (est.pos_ned_m[0] - radius, est.pos_ned_m[1])
-        down = self.home.alt_amsl_m - alt_amsl_m if math.isfinite(alt_amsl_m) else (
-            previous.down_m if previous is not None else est.pos_ned_m[2]
+        down = (
+            self.home.alt_amsl_m - alt_amsl_m
+            if math.isfinite(alt_amsl_m)
+            else (previous.down_m if previous is not None else est.pos_ned_m[2])
         )
-        task = OrbitTask(
-            centre, radius, speed if clockwise else -speed, behaviour, down, initial_yaw_rad=est.yaw_rad
-        )
+        task = OrbitTask(centre, radius, speed if clockwise else -speed, behaviour, down, initial_yaw_rad=est.yaw_rad)
         if self.mode is not FlightMode.ORBIT:
             result = self.set_mode(FlightMode.ORBIT)
             if result is not MavResult.ACCEPTED:
@@ -767,7 +769,7 @@ class Autopilot:
             speed,
         )
 
-    def _navigate(self, est: LocalState) -> NavOutput:  # noqa: PLR0911
+    def _navigate(self, est: LocalState) -> NavOutput:
         ctx = self._nav_context(est)
         mode = self.mode
         if self._user_takeoff is not None:
@@ -1001,7 +1003,7 @@ class Autopilot:
         self._thrust = thrust
 
     def _altctl_outer(self, est: LocalState) -> None:
-        """ALT_HOLD (ArduCopter) / ALTCTL: sticks tilt the vehicle, the throttle stick is a climb rate (centred: hold)."""
+        """ALT_HOLD (ArduCopter) / ALTCTL: sticks tilt the vehicle; throttle is a climb rate (centred holds)."""
         s = self.settings
         sticks = self._manual if self._manual_ok() else None
         self.last_nav = None

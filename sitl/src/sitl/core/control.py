@@ -365,7 +365,7 @@ def _shortest_rotation(u: Vec3, v: Vec3) -> Quat | None:
     return (w / n, cx / n, cy / n, cz / n)
 
 
-def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:  # noqa: PLR0914
+def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:  # noqa: PLR0915
     """Body rate setpoint (FRD, rad/s) from the attitude error, with roll and pitch first.
 
     PX4's multicopter attitude law (Brescianini, Hehn, D'Andrea 2013, "Nonlinear quadrocopter
@@ -576,20 +576,25 @@ class Mixer:
         if yaw > 0.0:
             for c in (1.0 - b0, 1.0 - b1, b2 - idle, b3 - idle):
                 yaw = c if c < yaw else yaw
-            yaw = 0.0 if 0.0 > yaw else yaw
+            yaw = 0.0 if yaw < 0.0 else yaw
         elif yaw < 0.0:
             y = -yaw
             for c in (b0 - idle, b1 - idle, 1.0 - b2, 1.0 - b3):
                 y = c if c < y else y
             yaw = -y
-            yaw = 0.0 if 0.0 < yaw else yaw
+            yaw = 0.0 if yaw > 0.0 else yaw
         inv = self._inv_exp
         o0, o1, o2, o3 = b0 + yaw, b1 + yaw, b2 - yaw, b3 - yaw
         o0 = 1.0 if o0 > 1.0 else (idle if o0 < idle else o0)
         o1 = 1.0 if o1 > 1.0 else (idle if o1 < idle else o1)
         o2 = 1.0 if o2 > 1.0 else (idle if o2 < idle else o2)
         o3 = 1.0 if o3 > 1.0 else (idle if o3 < idle else o3)
-        d0, d1, d2, d3 = o0**inv * voltage_scale, o1**inv * voltage_scale, o2**inv * voltage_scale, o3**inv * voltage_scale
+        d0, d1, d2, d3 = (
+            o0**inv * voltage_scale,
+            o1**inv * voltage_scale,
+            o2**inv * voltage_scale,
+            o3**inv * voltage_scale,
+        )
         return (
             1.0 if d0 > 1.0 else d0,
             1.0 if d1 > 1.0 else d1,

@@ -126,14 +126,16 @@ class FailsafeMonitor:
             params.settings.offboard_timeout_s, t_s, wall_s, wall_scale=wall_scale, wall_floor_s=self._floors[1]
         )
 
-    def update(self, x: FailsafeInputs, params: ParamTable) -> list[FailsafeEvent]:  # noqa: PLR0912
+    def update(self, x: FailsafeInputs, params: ParamTable) -> list[FailsafeEvent]:
         s = params.settings
         events: list[FailsafeEvent] = []
         flying = x.armed and x.in_air
         self._battery(x, s, events)
         dl_floor, _, rc_floor = self._floors
         # data link: the GCS's heartbeat keeps it alive; only after one was heard
-        lost = self.gcs.silent_for(s.datalink_timeout_s, x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=dl_floor)
+        lost = self.gcs.silent_for(
+            s.datalink_timeout_s, x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=dl_floor
+        )
         action = s.datalink_action
         if lost and FailsafeKind.DATALINK_LOST not in self._active:
             self._active.add(FailsafeKind.DATALINK_LOST)

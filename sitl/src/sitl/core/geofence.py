@@ -37,7 +37,7 @@ MAX_FENCE_ITEMS = 500
 Point2 = tuple[float, float]
 
 
-def validate_fence_item(item: MissionItem) -> MavMissionResult:
+def validate_fence_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911 - one return per check
     """``ACCEPTED`` or why one fence item is refused."""
     if item.command not in FENCE_COMMANDS:
         return MavMissionResult.UNSUPPORTED

@@ -101,7 +101,7 @@ class MissionItem:
         return not (self.x == 0 and self.y == 0)
 
 
-def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911 - one return per check
+def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911, PLR0912 - one return per check
     """``ACCEPTED`` or the ``MAV_MISSION_RESULT`` that rejects the upload (PX4's checks)."""
     if item.command not in NAV_COMMANDS and item.command not in DO_COMMANDS:
         return MavMissionResult.UNSUPPORTED

@@ -216,7 +216,7 @@ class RtlTask:
     def done(self) -> bool:
         return self.phase is RtlPhase.LANDED
 
-    def update(self, ctx: NavContext) -> NavOutput:  # noqa: PLR0912 - one branch per phase
+    def update(self, ctx: NavContext) -> NavOutput:  # noqa: PLR0911, PLR0912 - one branch per phase
         s = ctx.settings
         if self.phase is RtlPhase.CLIMB:
             if ctx.pos[2] <= self._return_down + s.acceptance_z_m:
@@ -361,7 +361,7 @@ class MissionTask:
             prog.roi = None
         self._advance(None)
 
-    def update(self, ctx: NavContext) -> NavOutput:  # noqa: PLR0912
+    def update(self, ctx: NavContext) -> NavOutput:  # noqa: PLR0911, PLR0912
         prog = self.progress
         prog.started = True
         items = self.store.items
@@ -459,7 +459,7 @@ class OrbitTask:
     RADIUS_MIN_M = 1.0
     APPROACH_TOLERANCE_M = 1.0
 
-    def __init__(  # noqa: PLR0913
+    def __init__(
         self,
         centre: tuple[float, float],
         radius_m: float,

@@ -169,7 +169,7 @@ class AttitudeSetpoint:
     thrust: float
 
 
-def attitude_setpoint(
+def attitude_setpoint(  # noqa: PLR0911 - one return per check
     type_mask: int, q: tuple[float, float, float, float], rates: Vec3, thrust: float
 ) -> AttitudeSetpoint | OffboardRejection:
     """Decode a SET_ATTITUDE_TARGET (``q`` as ``[w, x, y, z]``)."""

@@ -121,8 +121,14 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     _f("FLW_TGT_DST", 8.0, 1.0, 1000.0, "m", "Follow-me: horizontal distance to the target"),
     _f("FLW_TGT_FA", 180.0, -180.0, 180.0, "deg", "Follow-me: angle from the target's heading (0 front, 180 behind)"),
     _f("FLW_TGT_RS", 0.1, 0.0, 1.0, "norm", "Follow-me: target filter (0 follows at once, 1 smooths most)"),
-    _i("FLW_TGT_ALT_M", 0, 0, 2, "Follow-me altitude: 0 height above home, 1 (terrain: as 0), 2 target's + height",
-       (0, 1, 2)),
+    _i(
+        "FLW_TGT_ALT_M",
+        0,
+        0,
+        2,
+        "Follow-me altitude: 0 height above home, 1 (terrain: as 0), 2 target's + height",
+        (0, 1, 2),
+    ),
     _f("FLW_TGT_MAX_VEL", 5.0, 0.0, 20.0, "m/s", "Follow-me: maximum speed around the target"),
     _f("MC_ORBIT_RAD_MAX", 1000.0, 1.0, 10000.0, "m", "Orbit: largest radius DO_ORBIT accepts"),
     # Multicopter position control
@@ -305,7 +311,6 @@ class ParamTable:
             self._values[name] = float(value)
             self.version += 1
         return SetOutcome(True, float(value))
-
 
     def changed_from_default(self) -> dict[str, float]:
         """Values differing from the defaults: what the parameter file persists."""

@@ -18,7 +18,6 @@ from sitl.config import StreamProfile
 from sitl.core.autopilot import ManualInput
 from sitl.core.commands import CommandRequest, handle_command
 from sitl.core.mission import MissionItem
-from sitl.core.navigator import FollowTarget
 from sitl.core.mission_transfer import (
     MissionAckOut,
     MissionCountOut,
@@ -27,6 +26,7 @@ from sitl.core.mission_transfer import (
     Peer,
 )
 from sitl.core.modes import BASE_MODE_CUSTOM_MODE_ENABLED
+from sitl.core.navigator import FollowTarget
 from sitl.core.offboard import (
     OffboardRejection,
     attitude_setpoint,
@@ -80,7 +80,9 @@ class Gateway:
         # links of the same profile share one scheduler (their streams are due at the same instants) until a
         # SET_MESSAGE_INTERVAL on one of them gives that link its own copy (see _own_scheduler)
         by_profile = {
-            profile: StreamScheduler(ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate)
+            profile: StreamScheduler(
+                ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate
+            )
             for _, profile in links.values()
         }
         self.streams = {name: by_profile[profile] for name, (_, profile) in links.items()}
@@ -201,7 +203,9 @@ class Gateway:
 
     def _command(self, req: CommandRequest, msg: Any, route: Hashable) -> None:
         assert isinstance(route, tuple)
-        streams = self._own_scheduler(route[0]) if req.command == MavCmd.SET_MESSAGE_INTERVAL else self.streams[route[0]]
+        streams = (
+            self._own_scheduler(route[0]) if req.command == MavCmd.SET_MESSAGE_INTERVAL else self.streams[route[0]]
+        )
         if any(math.isinf(p) for p in req.params):
             self._stats(route).rx_invalid_values += 1
         outcome = handle_command(req, self.ap, streams, self.v.t_s)

@@ -205,7 +205,6 @@ class SimLink:
             return
         v = self.v
         s = v.truth()
-        f = self.encoder.factory
         vn, ve, vd = s.vel_ned_mps
         g = s.gravity_mps2
         ax, ay, az = s.specific_force_frd_mps2
@@ -251,5 +250,5 @@ _TWELVE_ZEROS = (0.0,) * 12
 
 def _i16(value: float) -> int:
     r = round(value)  # min() / max() written out (same result): six of these per state message
-    r = 32767 if 32767 < r else r
-    return int(-32767 if -32767 > r else r)
+    r = 32767 if r > 32767 else r
+    return int(-32767 if r < -32767 else r)

@@ -21,7 +21,7 @@ from typing import Any
 from fastcrc.crc16 import mcrf4xx
 from pymavlink.dialects.v20 import common as mavlink
 
-__all__ = ["STREAMED", "WireMessage", "WirePackers", "frame_payload"]
+__all__ = ["STREAMED", "WireMessage", "WirePackers"]
 
 _HEADER_V2 = struct.Struct("<BBBBBBBHB")
 
@@ -47,14 +47,6 @@ STREAMED = (
     "HIL_STATE_QUATERNION",
     "HIL_ACTUATOR_CONTROLS",
 )
-
-
-def frame_payload(payload: bytes, msg_id: int, crc_extra: int, seq: int, system_id: int, component_id: int) -> bytes:
-    """An unsigned MAVLink 2 frame of a payload (trailing zeros truncated, at least one byte kept)."""
-    body = payload.rstrip(b"\0") or payload[:1]
-    header = _HEADER_V2.pack(253, len(body), 0, 0, seq, system_id, component_id, msg_id & 0xFFFF, msg_id >> 16)
-    crc = mcrf4xx(header[1:] + body + bytes((crc_extra,)), 0xFFFF)
-    return header + body + crc.to_bytes(2, "little")
 
 
 class WireMessage:
@@ -114,7 +106,9 @@ def _packer(cls: Any) -> Callable[..., WireMessage]:
     """A function ``(*encode_args) -> WireMessage`` with pymavlink's ``<name>_encode`` arguments and defaults."""
     encode = getattr(mavlink.MAVLink, f"{cls.msgname.lower()}_encode")
     defaults = {
-        n: p.default for n, p in inspect.signature(encode).parameters.items() if p.default is not inspect.Parameter.empty
+        n: p.default
+        for n, p in inspect.signature(encode).parameters.items()
+        if p.default is not inspect.Parameter.empty
     }
     wire_args: list[str] = []
     for name, length in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
@@ -126,7 +120,7 @@ def _packer(cls: Any) -> Callable[..., WireMessage]:
     params = ", ".join(f"{n}=D[{n!r}]" if n in defaults else n for n in cls.fieldnames)
     source = f"def pack({params}):\n    return W(C, S({', '.join(wire_args)}))\n"
     namespace: dict[str, Any] = {"W": WireMessage, "C": cls, "S": cls.unpacker.pack, "D": defaults}
-    exec(source, namespace)  # noqa: S102 - generated from pymavlink's own field tables, like its pack()
+    exec(source, namespace)
     packer: Callable[..., WireMessage] = namespace["pack"]
     return packer
 
@@ -165,7 +159,9 @@ class WirePackers:
         quality: int,
     ) -> WireMessage:
         """ODOMETRY with both covariances unknown and reset_counter 0 (the SITL's): the constant part pre-packed."""
-        head = _ODOMETRY_HEAD.pack(time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed)
+        head = _ODOMETRY_HEAD.pack(
+            time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed
+        )
         tail = _ODOMETRY_TAIL.pack(frame_id, child_frame_id, 0, estimator_type, quality)
         return WireMessage(_ODOMETRY, head + _UNKNOWN_COVARIANCES + tail)
 

@@ -585,7 +585,9 @@ class WaypointController:
             eng.armed_seen = True
         actions: list[Action] = []
         position, yaw = self._setpoint(t)
-        guided_climb = self._state is ControllerState.TAKEOFF and t.autopilot is Autopilot.ARDUPILOT and eng.takeoff_sent
+        guided_climb = (
+            self._state is ControllerState.TAKEOFF and t.autopilot is Autopilot.ARDUPILOT and eng.takeoff_sent
+        )
         if not guided_climb:  # ArduCopter: a target would replace the takeoff the autopilot is flying
             actions.append(SendSetpoint(position, yaw))
         eng.setpoints_sent += 1
@@ -638,7 +640,7 @@ class WaypointController:
         eng.last_mode_request_wall_s = self._now_wall_s
         return [RequestMode(FlightMode.OFFBOARD)]
 
-    def _arm_and_takeoff(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action]:
+    def _arm_and_takeoff(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action]:  # noqa: PLR0911
         cfg = self.config
         if not t.armed:
             due = eng.last_arm_request_s is None or now_s - eng.last_arm_request_s >= cfg.arm_retry_s

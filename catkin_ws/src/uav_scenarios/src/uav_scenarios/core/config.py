@@ -24,8 +24,8 @@ from uav_common.config import config_errors_as, load_config
 from uav_scenarios.errors import ScenarioConfigError
 
 __all__ = [
-    "AutopilotKind",
     "AutonomySpec",
+    "AutopilotKind",
     "DepthSource",
     "MapBackend",
     "MapSpec",
