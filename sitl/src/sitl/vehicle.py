@@ -113,22 +113,26 @@ class Vehicle:
         """Advance one physics step (``dt_s``)."""
         ap = self.autopilot
         battery = self.battery
-        if self.steps % self.divider == 0:
+        fdm = self.fdm
+        divider = self.divider
+        if self.steps % divider == 0:
             self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
             ap.outer_update(self.t_s, wall_s, self.est, battery.soc, battery.terminal_voltage_v)
-        q, rates = self.fdm.attitude_and_rates()
+        q, rates = fdm.attitude_and_rates()
         voltage = battery.terminal_voltage_v
-        duty = ap.inner_update(q, rates, self.dt_s, self._vmax / max(voltage, 1.0))
+        # max(voltage, 1.0) written out (this runs every step)
+        duty = ap.inner_update(q, rates, self.dt_s, self._vmax / (1.0 if voltage < 1.0 else voltage))
         self.duty = duty
-        self.fdm.step(duty, voltage)
+        fdm.step(duty, voltage)
         # the electrical power of every step is integrated; the battery state (and its terminal
         # voltage) advances once per outer-loop period with the mean power of those steps
-        self._power_sum_w += self.fdm.motor_electrical_power_w()
-        self.steps += 1
-        self.t_s = self.steps * self.dt_s
-        if self.steps % self.divider == 0:
-            mean_w = self._power_sum_w / self.divider / self._esc_eff + self._avionics_w
-            battery.step(mean_w, self.dt_s * self.divider)
+        self._power_sum_w += fdm.motor_electrical_power_w()
+        steps = self.steps + 1
+        self.steps = steps
+        self.t_s = steps * self.dt_s
+        if steps % divider == 0:
+            mean_w = self._power_sum_w / divider / self._esc_eff + self._avionics_w
+            battery.step(mean_w, self.dt_s * divider)
             self._power_sum_w = 0.0
 
     TERRAIN_PENETRATION_M = 0.01

@@ -1055,5 +1055,5 @@ class Autopilot:
         rate_sp = self._rate_sp
         if rate_sp is None:
             rate_sp = attitude_rate_setpoint(q, self._q_sp, self._yaw_rate_ff, self.gains)
-        torque = self._rate_ctrl.update(rate_sp, rates, dt_s, self.gains, integrate=not self.landed)
+        torque = self._rate_ctrl.update(rate_sp, rates, dt_s, self.gains, integrate=not self.land_detector.landed)
         return self._mixer.mix(self._thrust, torque, voltage_scale)

@@ -104,7 +104,8 @@ class Encoder:
         self.fast = WirePackers()
         self.personality = vehicle.autopilot.personality
         self._chunk_id = 0
-        self._builders = self._table()
+        #: message id -> builder (what :meth:`build` dispatches through; the gateway's stream loop calls it directly)
+        self.builders = self._table()
 
     @property
     def time_boot_ms(self) -> int:
@@ -116,7 +117,7 @@ class Encoder:
 
     def build(self, msg_id: int) -> Any | None:
         """The message for a stream or a REQUEST_MESSAGE; ``None`` if it cannot be produced."""
-        builder = self._builders.get(msg_id)
+        builder = self.builders.get(msg_id)
         return None if builder is None else builder()
 
     def _table(self) -> dict[int, Callable[[], Any]]:

@@ -488,12 +488,14 @@ class Gateway:
         if t >= self._next_due_s:
             cache: dict[int, Any] = {}
             next_due = math.inf
+            builders = self.encoder.builders
             for sched, links in self._stream_links:
                 if t >= sched.next_due_s:
                     for msg_id in sched.due(t):
                         m = cache.get(msg_id)
                         if m is None:
-                            m = self.encoder.build(msg_id)
+                            builder = builders.get(msg_id)
+                            m = None if builder is None else builder()
                             cache[msg_id] = m
                         if m is not None:
                             for link in links:
