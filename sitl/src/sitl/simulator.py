@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from sitl import compiled_core
 from sitl.config import SitlConfig, StreamProfile, TimeMode, params_for_config
 from sitl.core.params import ParamTable
 from sitl.core.protocol import MavSeverity
@@ -258,10 +259,11 @@ class Simulator:
         t0 = self.vehicle.t_s
         steps0 = self.vehicle.steps
         log.info(
-            "simulation running: %s autopilot, %s, ports %s",
+            "simulation running: %s autopilot, %s, ports %s; step modules: %s",
             self.cfg.personality.label,
             self._describe_time(),
             self.ports(),
+            compiled_core.active().reason,
         )
         if self.cfg.time.mode is TimeMode.LOCKSTEP:
             self._run_lockstep(max_sim_time_s)

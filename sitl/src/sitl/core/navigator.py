@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 from sitl.core.control import MotionLimits, Setpoint
 from sitl.core.mission import MissionItem, MissionStore, item_target_ned
@@ -456,7 +456,7 @@ class OrbitTask:
     3 nose along the tangent, 4 as 1 (no sticks here).
     """
 
-    RADIUS_MIN_M = 1.0
+    RADIUS_MIN_M: ClassVar[float] = 1.0
     APPROACH_TOLERANCE_M = 1.0
 
     def __init__(
