@@ -150,6 +150,29 @@ def map_input_stamps(bag_path: Path) -> dict[str, list[int]]:
     return {t: sorted(v) for t, v in stamps.items()}
 
 
+def test_sar_with_the_ardupilot_personality_finds_the_person() -> None:
+    """The same autonomy against ``autopilot: ardupilot``: the controller takes off through GUIDED and
+    MAV_CMD_NAV_TAKEOFF, flies GUIDED position targets, and holds over the person."""
+    scenario = runs_dir() / "small_sar_ardupilot.yaml"
+    scenario.parent.mkdir(parents=True, exist_ok=True)
+    text = (HERE / "small_sar.yaml").read_text()
+    text = text.replace("name: small_sar\n", "name: small_sar_ardupilot\nautopilot: ardupilot\n")
+    text = text.replace("config: small_world.yaml", f"config: {HERE / 'small_world.yaml'}")
+    scenario.write_text(text)
+    run_dir, out = uav_run(scenario, "sar_ardupilot")
+    m = metrics(run_dir)
+    assert m["stop_reason"] == "target_found", out
+    assert 0 < m["time"]["complete_s"] < 120
+    assert m["collisions"]["count"] == 0
+    events = [e["what"] for e in m["events"]]
+    assert "complete: person confirmed" in events
+    controller_log = "\n".join(p.read_text() for p in (run_dir / "logs").rglob("waypoint_controller*.log"))
+    assert "autopilot confirmed GUIDED" in controller_log
+    assert "autopilot in STABILIZE" in controller_log  # ArduCopter's boot mode, named by its own table
+    sitl_log = "\n".join(p.read_text() for p in (run_dir / "logs").rglob("*.log"))
+    assert "ArduPilot autopilot" in sitl_log
+
+
 def test_replay_reproduces_the_live_metrics() -> None:
     run_dir, _ = uav_run(HERE / "small_loiter.yaml", "replay_live", "--time-limit", "25")
     # the bag holds every frame of the map camera (10 Hz): all three topics, one per 0.1 s, stamps exact

@@ -31,6 +31,7 @@ from uav_scenarios.errors import ScenarioConfigError
 __all__ = [
     "LINK_ENDPOINTS",
     "AutonomySpec",
+    "AutopilotKind",
     "DepthSource",
     "FaultSpec",
     "LinkImpairmentSpec",
@@ -81,6 +82,13 @@ class Strategy(enum.Enum):
 class TimeMode(enum.Enum):
     FREE = "free"
     LOCKSTEP = "lockstep"
+
+
+class AutopilotKind(enum.Enum):
+    """Which autopilot the simulated vehicle is (``uav-sitl --autopilot``); the controller adapts by itself."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
 
 
 class MapBackend(enum.Enum):
@@ -516,6 +524,8 @@ class Scenario:
     mission: MissionKind
     strategy: Strategy = Strategy.AUTONOMOUS
     description: str = ""
+    #: The simulated autopilot: ``px4`` or ``ardupilot`` (ArduCopter's modes, parameters and GUIDED takeoff).
+    autopilot: AutopilotKind = AutopilotKind.PX4
     world: WorldSpec = field(default_factory=WorldSpec)
     map: MapSpec = field(default_factory=MapSpec)
     depth_source: DepthSource = DepthSource.GROUND_TRUTH
