@@ -28,7 +28,7 @@ from uav_scenarios.report.data import read_run_bag
 
 pytestmark = pytest.mark.slow
 HERE = Path(__file__).resolve().parent
-FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detections")
+FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detections", "pr_curves", "gallery")
 
 
 def runs_dir() -> Path:
