@@ -39,7 +39,7 @@ def test_coco_ap_of_a_hand_built_case() -> None:
     c = det((100, 104, 109, 133), 0.7)
     scores = CocoScores()
     scores.add_image([g1, g2], [{}, {}], [a, b, c], [{}, {}, {}], {})
-    out = scores.evaluate({}, {})
+    out = scores.evaluate()
     ap50 = (51 + 50 * 2 / 3) / 101
     assert out["AP50"] == pytest.approx(ap50)
     assert out["AP"] == pytest.approx((6 * ap50 + 4 * 51 / 101) / 10)
@@ -50,16 +50,39 @@ def test_coco_ap_of_a_hand_built_case() -> None:
     assert (out["truths"], out["detections"], out["images"]) == (2, 3, 1)
 
 
+def test_coco_matching_image_by_image_equals_matching_them_all_at_once() -> None:
+    rng = np.random.default_rng(3)
+    bands = {"range": ContextBands((0.0, 50.0, 100.0), "m")}
+    frames = []
+    for _ in range(30):
+        truth = [
+            det((int(x), int(y), int(x) + 9, int(y) + 19), range_m=float(r)) for x, y, r in rng.uniform(0, 300, (3, 3))
+        ]
+        hyps = [
+            det((t.bbox_px[0] + 1, t.bbox_px[1], t.bbox_px[2] + 1, t.bbox_px[3]), float(s))
+            for t, s in zip(truth, rng.random(3), strict=True)
+        ]
+        hyps.append(det((400, 400, 409, 419), float(rng.random())))
+        frames.append((truth, hyps))
+    at_once, in_steps = CocoScores(object_contexts=bands), CocoScores(object_contexts=bands)
+    for k, (truth, hyps) in enumerate(frames):
+        for scores in (at_once, in_steps):
+            scores.add_image(truth, [{"range": t.range_m} for t in truth], hyps, [{} for _ in hyps], {})
+        if k % 7 == 3:
+            in_steps.update()
+    assert in_steps.evaluate() == at_once.evaluate()
+
+
 def test_coco_classes_and_an_empty_detector() -> None:
     truth = [det((10, 10, 19, 29)), det((50, 50, 89, 69), cls="vehicle")]
     scores = CocoScores()
     scores.add_image(truth, [{}, {}], [det((50, 50, 89, 69), 0.8, cls="person")], [{}], {})  # right box, wrong class
-    out = scores.evaluate({}, {})
+    out = scores.evaluate()
     assert out["AP50"] == 0.0
     assert out["per_class"]["vehicle"]["AP50"] == 0.0
     empty = CocoScores()
     empty.add_image(truth, [{}, {}], [], [], {})
-    assert empty.evaluate({}, {})["AP"] == 0.0  # every object missed
+    assert empty.evaluate()["AP"] == 0.0  # every object missed
 
 
 def test_coco_by_context_ignores_other_bands_and_reports_empty_ones() -> None:
@@ -67,7 +90,10 @@ def test_coco_by_context_ignores_other_bands_and_reports_empty_ones() -> None:
     near, far = det((10, 10, 29, 49)), det((200, 200, 203, 205))  # sqrt areas 28.3 and 4.9 px
     hit_near = det((10, 10, 29, 49), 0.9)
     false_small = det((400, 400, 402, 404), 0.95)  # 3.9 px: a false box counts in the band of its own size
-    scores = CocoScores()
+    scores = CocoScores(
+        object_contexts={"pixel_size": sizes, "visible_fraction": ContextBands((0.0, 0.65, 1.0))},
+        frame_contexts={"altitude": ContextBands((0.0, 20.0, 40.0), "m")},
+    )
     scores.add_image(
         [near, far],
         [{"pixel_size": near.size_px, "visible_fraction": 1.0}, {"pixel_size": far.size_px, "visible_fraction": 0.5}],
@@ -75,10 +101,7 @@ def test_coco_by_context_ignores_other_bands_and_reports_empty_ones() -> None:
         [{"pixel_size": hit_near.size_px, "visible_fraction": math.nan}, {"pixel_size": false_small.size_px}],
         {"altitude": 30.0},
     )
-    out = scores.evaluate(
-        {"pixel_size": sizes, "visible_fraction": ContextBands((0.0, 0.65, 1.0))},
-        {"altitude": ContextBands((0.0, 20.0, 40.0), "m")},
-    )
+    out = scores.evaluate()
     px = out["by_context"]["pixel_size"]
     assert list(px) == ["1-8 px", "8-12 px", "12-20 px", "20-32 px", ">=32 px"]
     assert px["20-32 px"]["AP50"] == pytest.approx(1.0)  # the near person, found; the small false box is elsewhere

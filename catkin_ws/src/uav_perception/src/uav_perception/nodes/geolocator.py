@@ -172,8 +172,11 @@ class GeolocatorNode:
     def _work(self) -> None:
         while not rospy.is_shutdown():
             with self.lock:
-                if not self.frames or not self._ready(self.frames[0]):
-                    self.lock.wait(timeout=0.05)
+                if not self.frames:
+                    self.lock.wait(timeout=1.0)  # woken by the next frame (a lockstep run's settle needs quiet)
+                    continue
+                if not self._ready(self.frames[0]):
+                    self.lock.wait(timeout=0.05)  # its depth image may still come
                     continue
                 frame = self.frames.popleft()
                 depth = self._depth_for(frame.msg.header.stamp.to_nsec()) if self.p.depth else None

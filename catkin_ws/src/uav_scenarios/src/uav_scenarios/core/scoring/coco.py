@@ -2,7 +2,8 @@
 
 Every scored image (a detector frame paired with the ground truth of the same camera and stamp) adds its
 truth boxes and the detector's boxes with their scores. :meth:`CocoScores.evaluate` runs pycocotools'
-``COCOeval`` (box IoU, IoU 0.50:0.05:0.95, 101 recall points, up to 100 detections per image) and gives
+``COCOeval`` (box IoU, IoU 0.50:0.05:0.95, 101 recall points, up to 100 detections per image; the matching
+image by image as the run goes, :meth:`CocoScores.update`) and gives
 
 * ``AP`` (mean over IoU 0.50:0.95 and classes), ``AP50`` (IoU 0.5), ``AR`` (max recall, 100 detections);
 * the precision-recall curve at IoU 0.5 (precision at recall 0, 0.01, ..., 1, mean over classes);
@@ -72,12 +73,24 @@ class ContextBands:
 
 @dataclass
 class CocoScores:
-    """Accumulates scored images; :meth:`evaluate` scores them all (slow: call it at the end or rarely)."""
+    """Accumulates scored images and scores them with pycocotools.
+
+    pycocotools' per-image matching (``COCOeval.evaluateImg``, nearly all of its time) depends on one image only,
+    so :meth:`update` runs it on the images added since the last call, once per object context, and keeps the
+    results; :meth:`evaluate` matches the rest and only accumulates (cheap), so a long run's final summary does
+    not redo the whole run. Frame contexts need no matching of their own: they accumulate subsets of the images.
+    """
 
     classes: tuple[str, ...] = ("person", "vehicle")
+    object_contexts: dict[str, ContextBands] = field(default_factory=dict)
+    frame_contexts: dict[str, ContextBands] = field(default_factory=dict)
     _images: list[dict[str, float]] = field(default_factory=list)
     _truth: list[dict[str, Any]] = field(default_factory=list)
     _dets: list[dict[str, Any]] = field(default_factory=list)
+    #: Per evaluation (None: overall; else an object context), image id -> its evaluateImg results, in
+    #: pycocotools' (category, area range) order.
+    _matched: dict[str | None, dict[int, list[Any]]] = field(default_factory=dict)
+    _next: int = 1
 
     @property
     def images(self) -> int:
@@ -102,12 +115,14 @@ class CocoScores:
             if det.class_name in self.classes and math.isfinite(det.score):
                 self._dets.append({"image_id": image_id, "det": det, "ctx": dict(ctx)})
 
-    # ---- evaluation ---------------------------------------------------------------------
+    # ---- matching, image by image ------------------------------------------------------
 
-    def _annotations(self, context: str | None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    def _annotations(self, context: str | None, first_image: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
         cat = {name: k + 1 for k, name in enumerate(self.classes)}
         gts, dts = [], []
         for k, item in enumerate(self._truth, start=1):
+            if item["image_id"] < first_image:
+                continue
             det: Detection = item["det"]
             value = item["ctx"].get(context, math.nan) if context else det.size_px**2
             gts.append(
@@ -122,6 +137,8 @@ class CocoScores:
                 }
             )
         for k, item in enumerate(self._dets, start=1):
+            if item["image_id"] < first_image:
+                continue
             det = item["det"]
             value = item["ctx"].get(context, math.nan) if context else det.size_px**2
             dts.append(
@@ -138,25 +155,63 @@ class CocoScores:
             )
         return gts, dts
 
-    def _run(self, context: str | None, image_ids: list[int], ranges: list[tuple[float, float]]) -> Any:
-        from pycocotools.coco import COCO  # noqa: PLC0415 - deferred: only the final summary needs it
+    def _ranges(self, context: str | None) -> list[tuple[float, float]]:
+        return [_ALL] if context is None else self.object_contexts[context].ranges()
+
+    def update(self) -> None:
+        """Match the images added since the last call (every evaluation), keeping the per-image results."""
+        from pycocotools.coco import COCO  # noqa: PLC0415 - deferred: only the summaries need it
         from pycocotools.cocoeval import COCOeval  # noqa: PLC0415
 
-        gts, dts = self._annotations(context)
-        images = [{"id": i} for i in range(1, len(self._images) + 1)]
+        first = self._next
+        self._next = len(self._images) + 1
+        busy = self._busy_images(set(range(first, self._next)))
+        if not busy:
+            return
+        images = [{"id": i} for i in busy]
         categories = [{"id": k + 1, "name": n} for k, n in enumerate(self.classes)]
+        for context in (None, *self.object_contexts):
+            gts, dts = self._annotations(context, first)
+            ranges = self._ranges(context)
+            with contextlib.redirect_stdout(io.StringIO()):
+                coco_gt = COCO()
+                coco_gt.dataset = {"images": images, "annotations": gts, "categories": categories}
+                coco_gt.createIndex()
+                coco_dt = COCO()
+                coco_dt.dataset = {"images": images, "annotations": dts, "categories": categories}
+                coco_dt.createIndex()
+                ev = COCOeval(coco_gt, coco_dt, iouType="bbox")
+                ev.params.imgIds = busy
+                ev.params.areaRng = [list(r) for r in ranges]
+                ev.params.areaRngLbl = [str(k) for k in range(len(ranges))]
+                ev.evaluate()
+            store = self._matched.setdefault(context, {})
+            n_img, n_area = len(busy), len(ranges)
+            for i, image_id in enumerate(busy):  # evalImgs is ordered category, area range, image
+                store[image_id] = [
+                    ev.evalImgs[(k * n_area + a) * n_img + i] for k in range(len(categories)) for a in range(n_area)
+                ]
+
+    def _accumulate(self, context: str | None, image_ids: list[int]) -> Any:
+        """pycocotools' accumulation over already matched images."""
+        import copy  # noqa: PLC0415
+
+        from pycocotools.cocoeval import COCOeval  # noqa: PLC0415
+
+        ranges = self._ranges(context)
+        store = self._matched[context]
         with contextlib.redirect_stdout(io.StringIO()):
-            coco_gt = COCO()
-            coco_gt.dataset = {"images": images, "annotations": gts, "categories": categories}
-            coco_gt.createIndex()
-            coco_dt = COCO()
-            coco_dt.dataset = {"images": images, "annotations": dts, "categories": categories}
-            coco_dt.createIndex()
-            ev = COCOeval(coco_gt, coco_dt, iouType="bbox")
-            ev.params.imgIds = image_ids
-            ev.params.areaRng = [list(r) for r in ranges]
-            ev.params.areaRngLbl = [str(k) for k in range(len(ranges))]
-            ev.evaluate()
+            ev = COCOeval(iouType="bbox")
+            p = ev.params
+            p.imgIds = image_ids
+            p.catIds = list(range(1, len(self.classes) + 1))
+            p.areaRng = [list(r) for r in ranges]
+            p.areaRngLbl = [str(k) for k in range(len(ranges))]
+            n_area = len(ranges)
+            ev.evalImgs = [
+                store[i][k * n_area + a] for k in range(len(p.catIds)) for a in range(n_area) for i in image_ids
+            ]
+            ev._paramsEval = copy.deepcopy(p)  # noqa: SLF001 - what COCOeval.evaluate would have set
             ev.accumulate()
         return ev
 
@@ -187,17 +242,14 @@ class CocoScores:
             "detections": sum(1 for d in self._dets if keep_det(d)),
         }
 
-    def evaluate(
-        self,
-        object_contexts: Mapping[str, ContextBands],
-        frame_contexts: Mapping[str, ContextBands],
-    ) -> dict[str, Any]:
+    def evaluate(self) -> dict[str, Any]:
         """Every score: overall, per class, and per band of every context (see the module docstring)."""
         out: dict[str, Any] = {"images": len(self._images), "truths": len(self._truth), "detections": len(self._dets)}
+        self.update()
         busy = self._busy_images()
         if not busy:
             return {**out, "AP": math.nan, "AP50": math.nan, "AR": math.nan, "pr_curve": [], "per_class": {}}
-        ev = self._run(None, busy, [_ALL])
+        ev = self._accumulate(None, busy)
         out.update(self._slice(ev, 0))
         out["per_class"] = {
             name: {
@@ -207,8 +259,8 @@ class CocoScores:
             for k, name in enumerate(self.classes)
         }
         by_context: dict[str, dict[str, Any]] = {}
-        for name, bands in object_contexts.items():
-            ev = self._run(name, busy, bands.ranges())
+        for name, bands in self.object_contexts.items():
+            ev = self._accumulate(name, busy)
             per: dict[str, Any] = {}
             for a, label in enumerate(bands.labels()):
                 lo, hi = bands.ranges()[a]
@@ -223,7 +275,7 @@ class CocoScores:
 
                 per[label] = {**self._slice(ev, a), **self._counts(in_band, det_counts)}
             by_context[name] = per
-        for name, bands in frame_contexts.items():
+        for name, bands in self.frame_contexts.items():
             per = {}
             for k, label in enumerate(bands.labels()):
                 frames = {i + 1 for i, ctx in enumerate(self._images) if bands.index(ctx.get(name, math.nan)) == k}
@@ -232,8 +284,7 @@ class CocoScores:
                 if not ids:
                     per[label] = {"AP": math.nan, "AP50": math.nan, "AR": math.nan, "pr_curve": [], **counts}
                     continue
-                ev = self._run(None, ids, [_ALL])
-                per[label] = {**self._slice(ev, 0), **counts}
+                per[label] = {**self._slice(self._accumulate(None, ids), 0), **counts}
             by_context[name] = per
         out["by_context"] = by_context
         return out

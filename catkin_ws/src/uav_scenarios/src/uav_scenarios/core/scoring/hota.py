@@ -151,6 +151,7 @@ class HotaAccumulator:
         fp = np.zeros(n_alpha)
         loc = np.zeros(n_alpha)
         pair_matches = np.zeros((n_alpha, len(gt_index), len(tr_index)))
+        alphas = ALPHAS[:, None] - _EPS
         for g, t, s in local:
             if g.size == 0 or t.size == 0:
                 fn += g.size
@@ -158,24 +159,19 @@ class HotaAccumulator:
                 continue
             rows, cols = linear_sum_assignment(-(alignment[np.ix_(g, t)] * s))
             matched_sim = s[rows, cols]
-            for a, alpha in enumerate(ALPHAS):
-                ok = matched_sim >= alpha - _EPS
-                n = int(ok.sum())
-                tp[a] += n
-                fn[a] += g.size - n
-                fp[a] += t.size - n
-                if n:
-                    loc[a] += float(matched_sim[ok].sum())
-                    np.add.at(pair_matches[a], (g[rows[ok]], t[cols[ok]]), 1.0)
-        assa = np.zeros(n_alpha)
-        assre = np.zeros(n_alpha)
-        asspr = np.zeros(n_alpha)
-        for a in range(n_alpha):
-            m = pair_matches[a]
-            denom = np.maximum(1.0, gt_frames[:, None] + tr_frames[None, :] - m)
-            assa[a] = float(np.sum(m * m / denom)) / max(1.0, tp[a])
-            assre[a] = float(np.sum(m * m / np.maximum(1.0, gt_frames[:, None]))) / max(1.0, tp[a])
-            asspr[a] = float(np.sum(m * m / np.maximum(1.0, tr_frames[None, :]))) / max(1.0, tp[a])
+            ok = matched_sim[None, :] >= alphas  # (alpha, match): a TP at that threshold
+            n = ok.sum(axis=1)
+            tp += n
+            fn += g.size - n
+            fp += t.size - n
+            loc += (ok * matched_sim[None, :]).sum(axis=1)
+            np.add.at(pair_matches, (np.arange(n_alpha)[:, None], g[rows][None, :], t[cols][None, :]), ok)
+        m = pair_matches
+        denom = np.maximum(1.0, gt_frames[None, :, None] + tr_frames[None, None, :] - m)
+        tp_safe = np.maximum(1.0, tp)
+        assa = np.sum(m * m / denom, axis=(1, 2)) / tp_safe
+        assre = np.sum(m * m / np.maximum(1.0, gt_frames[None, :, None]), axis=(1, 2)) / tp_safe
+        asspr = np.sum(m * m / np.maximum(1.0, tr_frames[None, None, :]), axis=(1, 2)) / tp_safe
         deta = tp / np.maximum(1.0, tp + fn + fp)
         detre = tp / np.maximum(1.0, tp + fn)
         detpr = tp / np.maximum(1.0, tp + fp)

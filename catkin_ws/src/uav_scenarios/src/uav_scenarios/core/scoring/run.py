@@ -421,7 +421,11 @@ class RunScorer:
         if hyp is not truth:
             self._geo.add_frame(hyp)
         if self._coco is None:
-            self._coco = CocoScores(self.classes)
+            self._coco = CocoScores(
+                self.classes,
+                {n: ContextBands(*self._bands(n)) for n in OBJECT_CONTEXTS},
+                {n: ContextBands(*self._bands(n)) for n in CONTEXTS if n not in OBJECT_CONTEXTS},
+            )
         self._coco.add_image(
             truth.detections,
             [self._object_values(d, camera_m) for d in truth.detections],
@@ -559,6 +563,8 @@ class RunScorer:
                 ``False`` reuses the last one, if any.
         """
         spec = self.spec
+        if tracking and self._coco is not None:
+            self._coco.update()  # the COCO matching of the frames scored since, so the final summary is quick
         times = np.array([p.t_s for p in self._poses])
         alt = altitude_stats(times, np.array(self._agl), spec.altitude_floor_m)
         bat = battery_use(self._battery)
@@ -650,9 +656,7 @@ class RunScorer:
         if self._coco is None:
             return {"images": 0}
         if self._coco_cache is None:
-            obj = {n: ContextBands(*self._bands(n)) for n in OBJECT_CONTEXTS}
-            frame = {n: ContextBands(*self._bands(n)) for n in CONTEXTS if n not in OBJECT_CONTEXTS}
-            self._coco_cache = self._coco.evaluate(obj, frame)
+            self._coco_cache = self._coco.evaluate()
         return self._coco_cache
 
     def _detection_summary(self, *, coco: bool = False) -> dict[str, Any]:
