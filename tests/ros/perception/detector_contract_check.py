@@ -78,7 +78,9 @@ def stamp(k: int) -> rospy.Time:
     return rospy.Time.from_sec(T0_S + k / RATE_HZ)
 
 
-def d2d(cu: float, cv: float, su: float, sv: float, class_id: int, score: float, hdr: Header) -> Detection2D:
+def d2d(box: tuple[float, float, float, float], class_id: int, score: float, hdr: Header) -> Detection2D:
+    """A Detection2D of centre and size ``box`` (pixels) with one hypothesis."""
+    cu, cv, su, sv = box
     det = Detection2D(header=hdr, bbox=BoundingBox2D(size_x=su, size_y=sv))
     det.bbox.center.x, det.bbox.center.y = cu, cv
     det.results = [ObjectHypothesisWithPose(id=class_id, score=score)]
@@ -225,11 +227,11 @@ class TestDetectorContract(unittest.TestCase):
                 )
                 if iid == 103 and k % 2:
                     continue  # the detector misses the farthest person every other frame
-                dets.append(d2d((x0 + x1) / 2 + 0.3, (y0 + y1) / 2, x1 - x0 + 1, y1 - y0 + 1, 0, 0.9, hdr))
-            dets.append(d2d(400.0, 20.0, 6.0, 14.0, 0, 0.7, hdr))  # above the horizon: cannot be placed
-            dets.append(d2d(math.nan, 100.0, 6.0, 14.0, 0, 0.9, hdr))  # NaN: discarded
-            dets.append(d2d(5000.0, 100.0, 6.0, 14.0, 0, 0.9, hdr))  # far outside the image: discarded
-            dets.append(d2d(200.0, 300.0, 10.0, 8.0, 16, 0.9, hdr))  # a COCO dog: no class of the range
+                dets.append(d2d(((x0 + x1) / 2 + 0.3, (y0 + y1) / 2, x1 - x0 + 1, y1 - y0 + 1), 0, 0.9, hdr))
+            dets.append(d2d((400.0, 20.0, 6.0, 14.0), 0, 0.7, hdr))  # above the horizon: cannot be placed
+            dets.append(d2d((math.nan, 100.0, 6.0, 14.0), 0, 0.9, hdr))  # NaN: discarded
+            dets.append(d2d((5000.0, 100.0, 6.0, 14.0), 0, 0.9, hdr))  # far outside the image: discarded
+            dets.append(d2d((200.0, 300.0, 10.0, 8.0), 16, 0.9, hdr))  # a COCO dog: no class of the range
             cls.pub_truth.publish(truth)
             cls.pub_det.publish(Detection2DArray(header=hdr, detections=dets))
             time.sleep(1.0 / RATE_HZ)
@@ -241,7 +243,7 @@ class TestDetectorContract(unittest.TestCase):
                 cls._status(cls.now, stop=True)
             time.sleep(0.05)
         wait_until(
-            lambda: cls.collect["metrics"].snapshot(),
+            cls.collect["metrics"].snapshot,
             lambda msgs: any('"final": true' in m.summary_json for m in msgs),
             timeout_s=60.0,
             describe="the scorer's final metrics",
@@ -269,7 +271,9 @@ class TestDetectorContract(unittest.TestCase):
                 self.assertGreater(cov[0, 0], 0.0)
         status = self.collect["geo_status"].snapshot()[-1]
         self.assertEqual(status.frames, N_FRAMES)
-        self.assertEqual(dict(zip(status.unplaced_reasons, status.unplaced_counts, strict=True)), {"no_surface": N_FRAMES})
+        self.assertEqual(
+            dict(zip(status.unplaced_reasons, status.unplaced_counts, strict=True)), {"no_surface": N_FRAMES}
+        )
         discarded = dict(zip(status.discarded_reasons, status.discarded_counts, strict=True))
         self.assertEqual(discarded, {"nan_box": N_FRAMES, "out_of_image": N_FRAMES, "unknown_class": N_FRAMES})
         self.assertEqual(dict(zip(status.placed_sources, status.placed_counts, strict=True)), {"elevation": 100})
