@@ -109,6 +109,7 @@ class TestDetectorContract(unittest.TestCase):
         cls.collect = {
             "geo": Collector("/geolocator/detections", DetectionArray),
             "geo_status": Collector("/geolocator/status", GeolocatorStatus),
+            "geo_depth": Collector("/geolocator_depth/detections", DetectionArray),
             "tracks": Collector("/scenario/tracks", TrackArray),
             "metrics": Collector("/scenario/metrics", RunMetrics),
             "gallery": Collector("/scenario/snapshot/gallery", Image),
@@ -118,6 +119,7 @@ class TestDetectorContract(unittest.TestCase):
         cls.pub_layers = rospy.Publisher("/map_server/layers", GridLayers, queue_size=1, latch=True)
         cls.pub_info = rospy.Publisher("/cameras/forward/color/camera_info", CameraInfo, queue_size=50)
         cls.pub_color = rospy.Publisher("/cameras/forward/color/image_raw", Image, queue_size=50)
+        cls.pub_depth = rospy.Publisher("/cameras/forward/depth/image_raw", Image, queue_size=50)
         cls.pub_odom = rospy.Publisher("/uav/ground_truth/odom", Odometry, queue_size=50)
         cls.pub_truth = rospy.Publisher("/detections/ground_truth", DetectionArray, queue_size=50)
         cls.pub_det = rospy.Publisher("/test_detector/detections", Detection2DArray, queue_size=50)
@@ -137,8 +139,9 @@ class TestDetectorContract(unittest.TestCase):
         layers.data = np.concatenate([np.zeros(300 * 300), np.ones(300 * 300)]).astype(np.float32).tolist()
         cls.pub_layers.publish(layers)
         for pub, nodes in (
-            (cls.pub_det, {"/geolocator"}),
-            (cls.pub_info, {"/geolocator"}),
+            (cls.pub_det, {"/geolocator", "/geolocator_depth"}),
+            (cls.pub_info, {"/geolocator", "/geolocator_depth"}),
+            (cls.pub_depth, {"/geolocator_depth"}),
             (cls.pub_layers, {"/geolocator"}),
             (cls.pub_truth, {"/scorer"}),
             (cls.pub_color, {"/scorer"}),
@@ -191,6 +194,11 @@ class TestDetectorContract(unittest.TestCase):
 
     @classmethod
     def _play(cls) -> None:
+        # z-depth of the flat ground (z = 0) seen by the camera, NaN above the horizon
+        u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+        rays = np.stack([(u - CX) / F, (v - CY) / F, np.ones_like(u)], axis=-1) @ R_MAP_OPTICAL.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = np.where(rays[..., 2] < 0, -EYE[2] / rays[..., 2], np.nan).astype(np.float32)
         rgb = np.full((H, W, 3), 110, np.uint8)
         for x0, y0, x1, y1 in cls.boxes.values():
             rgb[y0 : y1 + 1, x0 : x1 + 1] = (40, 40, 160)
@@ -205,6 +213,10 @@ class TestDetectorContract(unittest.TestCase):
             cls.pub_info.publish(cls._camera_info(t))
             img = Image(header=hdr, height=H, width=W, encoding="rgb8", step=3 * W, data=rgb.tobytes())
             cls.pub_color.publish(img)
+            if k % 5 != 4:  # every fifth frame's depth image never comes: that frame falls back (no surface)
+                cls.pub_depth.publish(
+                    Image(header=hdr, height=H, width=W, encoding="32FC1", step=4 * W, data=depth.tobytes())
+                )
             truth = DetectionArray(header=hdr, camera="forward", source="ground_truth")
             dets = []
             for iid, (x, y) in PEOPLE.items():
@@ -277,6 +289,25 @@ class TestDetectorContract(unittest.TestCase):
         discarded = dict(zip(status.discarded_reasons, status.discarded_counts, strict=True))
         self.assertEqual(discarded, {"nan_box": N_FRAMES, "out_of_image": N_FRAMES, "unknown_class": N_FRAMES})
         self.assertEqual(dict(zip(status.placed_sources, status.placed_counts, strict=True)), {"elevation": 100})
+
+    def test_a_geolocator_on_the_depth_image_places_by_depth_and_falls_back_without_it(self) -> None:
+        frames = self.collect["geo_depth"].snapshot()
+        self.assertEqual(len(frames), N_FRAMES)
+        by_depth = 0
+        for frame in frames:
+            k = round((frame.header.stamp.to_sec() - T0_S) * RATE_HZ)
+            people = [d for d in frame.detections if d.position_source in ("depth", "unplaced:no_surface_model")]
+            sources = {d.position_source for d in people}
+            if k % 5 == 4:  # no depth image for this stamp, and this geolocator has no other surface
+                self.assertNotIn("depth", sources)
+                continue
+            for d in frame.detections:
+                if d.position_source != "depth":
+                    continue
+                by_depth += 1
+                err = min(math.hypot(d.position.x - x, d.position.y - y) for x, y in PEOPLE.values())
+                self.assertLess(err, 0.6, f"placed by depth at {d.position.x:.2f}, {d.position.y:.2f}")
+        self.assertGreaterEqual(by_depth, 60)
 
     def test_the_tracker_follows_the_placements_and_reports_what_it_could_not_use(self) -> None:
         frames = self.collect["tracks"].snapshot()
