@@ -211,7 +211,7 @@ class CocoScores:
             ev.evalImgs = [
                 store[i][k * n_area + a] for k in range(len(p.catIds)) for a in range(n_area) for i in image_ids
             ]
-            ev._paramsEval = copy.deepcopy(p)  # noqa: SLF001 - what COCOeval.evaluate would have set
+            ev._paramsEval = copy.deepcopy(p)
             ev.accumulate()
         return ev
 
