@@ -11,6 +11,9 @@ Subscribes:
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
     ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
     ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
+    with ``pose_source: autopilot``: ``/uav/autopilot/odom`` (nav_msgs/Odometry, the estimate the autonomy flew
+    on: its error against the ground truth) and ``/autopilot_odometry/status`` (uav_msgs/EstimateStatus:
+    its changes of state, e.g. STALE with the reason, are events);
     camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times, and the
     detector camera's color images when the detector is not the ground truth (``scoring.gallery_size`` > 0:
     the gallery of its worst mistakes is cut from them).
@@ -74,6 +77,7 @@ from uav_msgs.msg import (
     ControllerState,
     DepthMetrics,
     DetectionArray,
+    EstimateStatus,
     GoalReason,
     GridLayers,
     MapInsertStats,
@@ -82,7 +86,16 @@ from uav_msgs.msg import (
     TrackArray,
 )
 from uav_msgs.srv import ExportVoxels
-from uav_scenarios.core.config import GEOLOCATED_TOPIC, DetectorKind, Scenario, effective_yaml, load_scenario
+from uav_scenarios.core.config import (
+    ESTIMATE_STATUS_TOPIC,
+    GEOLOCATED_TOPIC,
+    DetectorKind,
+    PoseSource,
+    Scenario,
+    effective_yaml,
+    estimate_topic,
+    load_scenario,
+)
 from uav_scenarios.core.scoring.gallery import crop_tile, mosaic
 from uav_scenarios.core.scoring.metrics import voxel_accuracy, voxel_keys_from_indices
 from uav_scenarios.core.scoring.run import RunScorer, swath_width_m
@@ -96,6 +109,7 @@ from uav_scenarios.ros.records import (
     controller_from_msg,
     depth_metrics_from_msg,
     detections_from_msg,
+    estimate_status_from_msg,
     goal_from_msg,
     grid_from_msg,
     image_from_msg,
@@ -219,6 +233,11 @@ class ScorerNode:
                 )
         sub = rospy.Subscriber
         sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
+        if self.scenario.pose_source is PoseSource.AUTOPILOT:
+            topic = estimate_topic(self.scenario)
+            sub(topic, Odometry, self._feed(pose_from_odometry, "add_estimate"), queue_size=QUEUE)
+            status = self._feed(estimate_status_from_msg, "add_estimate_status")
+            sub(ESTIMATE_STATUS_TOPIC, EstimateStatus, status, queue_size=QUEUE)
         sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
         # numpy_msg: the float32[] of big grids deserialises into an array, not a Python tuple.
         sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)

@@ -30,6 +30,7 @@ class MissionManagerParams:
     expect_mission: str = ""
     depth_source: str = ""
     detector: str = ""
+    pose_source: str = ""
     wait_for_recorder: bool = False
     shutdown_on_stop: bool = True
     linger_s: float = 1.0

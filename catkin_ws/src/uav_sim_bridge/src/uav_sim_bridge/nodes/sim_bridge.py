@@ -4,8 +4,11 @@ ROS interface (names are defaults; remap as usual):
 
 Publishes:
     /clock (rosgraph_msgs/Clock): simulation time of every ground-truth state.
-    /tf: map -> base_link (ground truth, or with seeded pose noise if ``noise.enabled``).
-    /tf_static: base_link -> camera_<cam> (mount) -> camera_<cam>_optical.
+    /tf: map -> base_link (ground truth, or with seeded pose noise if ``noise.enabled``), unless
+        ``~publish_pose_tf`` is false (the pose then comes from the autopilot's estimate: autopilot_odometry).
+    /tf_static: base_link -> camera_<cam> (mount) -> camera_<cam>_optical, from the robot description, unless
+        ``~publish_camera_tf`` is false (scenario runs: the robot_description node publishes them, as on a
+        real vehicle).
     /uav/ground_truth/odom (nav_msgs/Odometry): exact pose in map, twist in base_link.
     /uav/sim_state (uav_msgs/SimState): armed, crashed, lockstep, motors, real-time factor;
         published last for each state, so a lockstep master can wait for it.
@@ -29,6 +32,9 @@ Parameters:
     ~overrides (dict, default {}): deep-merged over the file (e.g. from a scenario).
     ~world, ~world_cache_dir, ~sim_host, ~sim_port, ~local_port, ~lockstep_role (str/int, "" = from file).
     ~cameras (str, "" = all): comma-separated subset of the configured cameras to run.
+    ~robot_description (str, default: the project's config/robot.yaml): the camera mounts (extrinsics) come
+        from this file, the one a real airframe edits; config/sim_bridge.yaml holds the intrinsics only.
+    ~publish_pose_tf, ~publish_camera_tf (bool, default true): see /tf and /tf_static above.
     ~settle (bool, default false), ~settle_root_pid (int, default: our parent, i.e. roslaunch),
     ~settle_timeout_s (float, 10): lockstep master only: before publishing a state's /clock, before
     publishing the rest of it and before granting the next step, wait until every process of the
@@ -69,13 +75,14 @@ from uav_common.detection_classes import DetectionClasses, load_detection_classe
 from uav_common.geo import GeoPoint
 from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
+from uav_common.robot import load_robot_description
 from uav_common.ros.arrays import depth_cloud_msg, image_msg
 from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import SimBridgeConfig
+from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
@@ -112,6 +119,9 @@ class BridgeParams:
     world: str = ""
     world_cache_dir: str = ""
     cameras: str = ""
+    robot_description: str = ""
+    publish_pose_tf: bool = True
+    publish_camera_tf: bool = True
     sim_host: str = ""
     sim_port: int | str = ""
     local_port: int | str = ""
@@ -162,6 +172,9 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
             det = dict(data.get("detections", {}))
             det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
             data["detections"] = det
+        robot_path = Path(params.robot_description).expanduser() if params.robot_description else None
+        robot = load_robot_description(robot_path or config_file("robot.yaml"))
+        data["cameras"] = mounted_cameras(data.get("cameras"), robot, source=str(path))
         return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
 
 
@@ -249,7 +262,9 @@ class SimBridgeNode:
         self.tracker = SimLinkTracker(sitl_system_id=1, counters=self.counters)
         rospy.loginfo("sim link: local UDP %d -> %s:%d", self.link.local_port, sl.host, sl.port)
         self._make_publishers()
-        self._publish_static()
+        self.publish_pose_tf = params.publish_pose_tf
+        if params.publish_camera_tf:
+            self._publish_static()
         self._requests: queue.Queue[_MoveRequest] = queue.Queue()
         self._service = rospy.Service("~set_object_pose", SetObjectPose, self._on_set_object_pose)
         rospy.set_param("~world_hash", self.world.hash)
@@ -565,7 +580,8 @@ class SimBridgeNode:
         )
         out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
         cfg = self.cfg
-        self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
+        if self.publish_pose_tf:
+            self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
         self.pub_odom.publish(conv.odometry(state, cfg.map_frame, cfg.base_frame))
         for cam_out in out.cameras:
             self._publish_camera(t, cam_out)
