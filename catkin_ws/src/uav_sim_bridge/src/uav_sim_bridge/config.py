@@ -105,7 +105,18 @@ class GroundTruthDetectionsConfig(DetectionConfig):
     """``detections``: registration rules plus the cameras that produce detections."""
 
     cameras: tuple[str, ...] = ("forward", "nadir")
+    #: The truth for scoring (uav_msgs/DetectionArray: instance ids, true centres, ranges, visible fractions).
     topic: str = "/detections/ground_truth"
+    #: The same boxes as a box-only detector (vision_msgs/Detection2DArray), one topic per camera.
+    boxes_topic: str = "/detections/{camera}/ground_truth"
+    #: The class map for the boxes' class ids (null: config/detection_classes.yaml).
+    class_map: Path | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if "{camera}" not in self.boxes_topic:
+            msg = f"boxes_topic must contain {{camera}} (one topic per camera), got {self.boxes_topic!r}"
+            raise ValueError(msg)
 
 
 @dataclass(frozen=True)
