@@ -23,7 +23,7 @@ from typing import Any
 from uav_scenarios.core.config import LinkImpairmentSpec, PoseSource, Scenario, TimeMode
 from uav_scenarios.errors import ScenarioError
 
-__all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv"]
+__all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv", "yaml_scalar"]
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ def flatten_settings(data: Mapping[str, Any], prefix: str = "") -> list[tuple[st
     return out
 
 
-def _yaml_scalar(value: Any) -> str:
+def yaml_scalar(value: Any) -> str:
     """A value as ``--set`` parses it (YAML): lists/dicts in flow style, None as null."""
     if value is None:
         return "null"
@@ -83,9 +83,9 @@ def _yaml_scalar(value: Any) -> str:
         msg = f"non-finite SITL setting {value!r}"
         raise ScenarioError(msg)
     if isinstance(value, list | tuple):
-        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+        return "[" + ", ".join(yaml_scalar(v) for v in value) + "]"
     if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{k}: {_yaml_scalar(v)}" for k, v in value.items()) + "}"
+        return "{" + ", ".join(f"{k}: {yaml_scalar(v)}" for k, v in value.items()) + "}"
     return str(value)
 
 
@@ -121,7 +121,7 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
     else:
         argv += ["--speed-factor", f"{scenario.time.speed_factor:g}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
-        argv += ["--set", f"{key}={_yaml_scalar(value)}"]
+        argv += ["--set", f"{key}={yaml_scalar(value)}"]
     return argv
 
 
