@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from uav_scenarios.core.config import LinkImpairmentSpec, PoseSource, Scenario, TimeMode
+from uav_scenarios.core.config import LOCKSTEP_WALL_FLOOR_S, LinkImpairmentSpec, PoseSource, Scenario, TimeMode
 from uav_scenarios.errors import ScenarioError
 
 __all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv", "yaml_scalar"]
@@ -117,7 +117,8 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
             "--api-port", str(ports.controller), "--api-local-port", "0",
         ]  # fmt: skip
     if scenario.time.mode is TimeMode.LOCKSTEP:
-        argv.append("--lockstep")
+        # the offboard-stream failsafe needs wall-clock silence too (node_params.sitl below may change it)
+        argv += ["--lockstep", "--set", f"time.stream_wall_floor_s={LOCKSTEP_WALL_FLOOR_S:g}"]
     else:
         argv += ["--speed-factor", f"{scenario.time.speed_factor:g}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
