@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from sitl.config import EstimatorMode, SitlConfig, params_for_config
 from sitl.core.autopilot import Autopilot
 from sitl.core.battery import BatteryModel, BatteryReading, BatterySpec
@@ -16,6 +18,7 @@ from sitl.core.control import Mixer
 from sitl.core.estimator import Estimator, NoiseModel
 from sitl.core.params import ParamTable
 from sitl.core.state import LocalState, VehicleState
+from sitl.core.wind import WindModel, WindSpec
 from sitl.fdm import JsbsimQuad
 from uav_common.geo import GeoPoint, LocalProjection
 
@@ -88,6 +91,18 @@ class Vehicle:
         self._avionics_w = b.avionics_power_w
         self._vmax = phys.motor_max_voltage_v
         self._power_sum_w = 0.0
+        w = cfg.wind
+        self.wind: WindModel | None = None
+        if w.enabled:
+            spec = WindSpec(w.speed_mps, w.from_deg, w.reference_height_m, w.shear_exponent, w.turbulence.value)
+            self.wind = WindModel(spec, np.random.default_rng(w.seed))
+            self._update_wind()
+
+    def _update_wind(self) -> None:
+        """The wind at the vehicle's height for the next outer-loop period (only with ``wind`` configured)."""
+        assert self.wind is not None
+        s = self.truth()
+        self.fdm.set_wind_ned(self.wind.update(s.height_above_ground_m, s.vel_ned_mps, self.dt_s * self.divider))
 
     def truth(self) -> VehicleState:
         """Ground truth at the present step (cached)."""
@@ -116,6 +131,8 @@ class Vehicle:
         fdm = self.fdm
         divider = self.divider
         if self.steps % divider == 0:
+            if self.wind is not None and self.steps:
+                self._update_wind()
             self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
             ap.outer_update(self.t_s, wall_s, self.est, battery.soc, battery.terminal_voltage_v)
         q, rates = fdm.attitude_and_rates()
