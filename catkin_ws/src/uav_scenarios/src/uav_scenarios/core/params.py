@@ -20,9 +20,10 @@ import numpy.typing as npt
 
 from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower
 from uav_autonomy.errors import InvalidInputError
-from uav_common.config import deep_merge
+from uav_common.config import deep_merge, to_mapping
 from uav_scenarios.core.config import FEATURE_NAMES, DepthSource, MissionKind, Scenario, Strategy, TimeMode
 from uav_scenarios.errors import ScenarioError
+from uav_sim_bridge.core.motion import ActorsConfig
 
 #: Terrain height above home at (x, y), vectorised (e.g. the world's ``height_at``).
 GroundModel = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.ArrayLike]
@@ -116,6 +117,15 @@ def sim_bridge(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if ctx.person:
         p = ctx.person
         out["object_poses"] = {str(p["name"]): [float(p["x_m"]), float(p["y_m"]), 0.0]}
+    if scenario.environment:
+        out["environment"] = dict(scenario.environment)
+    actors = to_mapping(scenario.actors) if scenario.actors != ActorsConfig() else {}
+    if scenario.search is not None and scenario.search.person.pose is not None:
+        name = scenario.search.person.name
+        objects = actors.setdefault("objects", {})
+        objects[name] = {**objects.get(name, {}), "pose": scenario.search.person.pose}
+    if actors:
+        out["actors"] = actors
     return out
 
 

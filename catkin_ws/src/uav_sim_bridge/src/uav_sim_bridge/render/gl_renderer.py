@@ -35,6 +35,7 @@ import numpy.typing as npt
 
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.generator import TERRAIN_INSTANCE_ID
+from uav_sim_bridge.core.lighting import Lighting
 from uav_sim_bridge.core.mesh import LOD_ALWAYS, LOD_FAR, LOD_NEAR
 from uav_sim_bridge.core.objects import ObjectPose
 from uav_sim_bridge.core.render_settings import RenderSettings
@@ -85,6 +86,17 @@ def gl_view(t_map_optical: RigidTransform) -> npt.NDArray[np.float64]:
     return v
 
 
+def _set(prog: Any, name: str, value: Any) -> None:
+    """Set a uniform if the program has it (the GLSL compiler drops unused ones)."""
+    u = prog.get(name, None)
+    if u is None:
+        return
+    if isinstance(value, bytes):
+        u.write(value)
+    else:
+        u.value = value
+
+
 class _Target:
     """Framebuffer and readback buffers of one image size."""
 
@@ -115,12 +127,14 @@ class Renderer:
         RenderError: no usable EGL/OpenGL 3.3 context.
     """
 
-    def __init__(self, world: World, settings: RenderSettings | None = None) -> None:
+    def __init__(self, world: World, settings: RenderSettings | None = None, lighting: Lighting | None = None) -> None:
         import moderngl  # noqa: PLC0415  (GL is optional for the pure core)
 
         self._mgl: Any = moderngl  # moderngl's stubs are partial; GL objects are handled as Any
         self.world = world
         self.settings = settings or RenderSettings()
+        s = self.settings
+        self.lighting = lighting or Lighting.clean(s.sun_azimuth_deg, s.sun_elevation_deg, s.haze_distance_m)
         self._thread = threading.get_ident()
         try:
             self.ctx: Any = self._mgl.create_context(standalone=True, backend="egl")
@@ -133,33 +147,68 @@ class Renderer:
         self.gl_renderer = str(self.ctx.info.get("GL_RENDERER", "unknown"))
         self._targets: dict[tuple[int, int], _Target] = {}
         self._queries: list[Any] = []  # occlusion queries of unoccluded_pixel_counts, reused
+        self._shadow_static: Any = None  # (texture, framebuffer) of the static shadow map, made on demand
+        self._shadow_static_key: tuple[float, ...] | None = None  # the sun it was rendered for
+        self._shadow_dyn: Any = None
+        self._light0 = np.eye(4)
+        self._light_depth = (0.0, 1.0)
+        self.static_shadow_renders = 0  # how often the static shadow map was rendered (once per sun)
+        self.last_object_shadows = False  # whether the last frame drew the people/vehicle shadow map
         self._build_programs()
         self._upload_static()
         self._upload_dynamic()
         self.last_triangles = 0
+        self.set_lighting(self.lighting)
 
     # ------------------------------------------------------------------ setup
     def _build_programs(self) -> None:
         ctx = self.ctx
         s = self.settings
-        self.prog: Any = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=shaders.MAIN_FS)
-        pad_fs = shaders.with_defines(shaders.MAIN_FS, "PAD")
-        self.prog_pad: Any = ctx.program(vertex_shader=shaders.MAIN_VS, fragment_shader=pad_fs)
+        # One shaded program per (landing pad, shadow mode): 0 no shadows, 1 static, 2 static + people/vehicles.
+        self._progs: dict[tuple[bool, int], Any] = {}
+        for pad in (False, True):
+            for mode in (0, 1, 2):
+                defines = (
+                    (["PAD"] if pad else []) + (["SHADOWS"] if mode else []) + (["DYN_SHADOWS"] if mode == 2 else [])
+                )
+                vs = shaders.with_defines(shaders.MAIN_VS, *defines)
+                fs = shaders.with_defines(shaders.MAIN_FS, *defines)
+                prog = ctx.program(vertex_shader=vs, fragment_shader=fs)
+                prog["u_texture_gain"].value = s.texture_gain
+                if pad:
+                    prog["u_pad_half_m"].value = s.pad_half_size_m
+                    prog["u_pad_instance"].value = TERRAIN_INSTANCE_ID
+                for name, unit in (("u_shadow0", 0), ("u_shadow1", 1)):
+                    if prog.get(name, None) is not None:
+                        prog[name].value = unit
+                self._progs[(pad, mode)] = prog
+        self.prog: Any = self._progs[(False, 0)]
+        self.prog_pad: Any = self._progs[(True, 0)]
         self.sky: Any = ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=shaders.SKY_FS)
-        sun = s.sun_direction
-        haze = (0.74, 0.80, 0.88)
-        for prog in (self.prog, self.prog_pad):
-            prog["u_sun"].value = sun
-            prog["u_texture_gain"].value = s.texture_gain
-            prog["u_haze_m"].value = s.haze_distance_m
-            prog["u_haze_color"].value = haze
-        self.prog_pad["u_pad_half_m"].value = s.pad_half_size_m
-        self.prog_pad["u_pad_instance"].value = TERRAIN_INSTANCE_ID
-        self.sky["u_sun"].value = sun
-        self.sky["u_haze_color"].value = haze
         tri = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], dtype="f4").tobytes())
         self.sky_vao = ctx.vertex_array(self.sky, [(tri, "2f", "in_xy")])
         self.iprog: Any = ctx.program(vertex_shader=shaders.INSTANCE_VS, fragment_shader=shaders.INSTANCE_FS)
+        self.dprog: Any = ctx.program(vertex_shader=shaders.DEPTH_VS, fragment_shader=shaders.DEPTH_FS)
+
+    # ------------------------------------------------------------------ light
+    def set_lighting(self, lighting: Lighting) -> None:
+        """Use this light from the next frame on (the static shadow map follows the sun, once per change)."""
+        self.lighting = lighting
+        lt = lighting
+        with self.ctx:
+            for prog in self._progs.values():
+                prog["u_sun"].value = lt.sun_dir
+                prog["u_sun_rgb"].value = lt.sun_rgb
+                prog["u_sky_rgb"].value = lt.sky_rgb
+                prog["u_ambient_rgb"].value = lt.ambient_rgb
+                prog["u_haze_color"].value = lt.haze_rgb
+                prog["u_haze_per_m"].value = lt.haze_per_m
+                prog["u_haze_max"].value = lt.haze_max
+            self.sky["u_sun"].value = lt.sun_dir
+            self.sky["u_zenith"].value = lt.zenith_rgb
+            self.sky["u_horizon"].value = lt.horizon_rgb
+            self.sky["u_glow"].value = lt.glow_rgb
+            self.sky["u_sun_disc"].value = lt.sun_disc
 
     def _vertex_bytes(self, verts: npt.NDArray[np.float32], normals: npt.NDArray[np.float32],
                       colors: npt.NDArray[np.float32], inst: npt.NDArray[np.uint32]) -> bytes:  # fmt: skip
@@ -175,7 +224,7 @@ class Renderer:
         instance = self.ctx.vertex_array(self.iprog, [(vbo, "3f 24x 1u", "in_pos", "in_inst")], ibo)
         return self._shaded_vao(self.prog, vbo, ibo), instance
 
-    def _upload_static(self) -> None:
+    def _upload_static(self) -> None:  # noqa: PLR0915 - one pass over the static mesh
         w = self.world
         m = w.mesh
         cls = w.instance_class[w.face_instance]
@@ -194,7 +243,7 @@ class Renderer:
         # Within a tile: NEAR, ALWAYS, FAR, so near = [NEAR+ALWAYS] and far = [ALWAYS+FAR] are contiguous.
         rank = np.select([lod == LOD_NEAR, lod == LOD_ALWAYS, lod == LOD_FAR], [0, 1, 2])
         order = np.lexsort((rank, tile))
-        faces, tile, rank, tris = faces[order], tile[order], rank[order], tris[order]
+        faces, tile, rank, tris, lod = faces[order], tile[order], rank[order], tris[order], lod[order]
         n_tiles = nx * ny
         key = tile * 3 + rank
         bounds = np.searchsorted(key, np.arange(n_tiles * 3 + 1))
@@ -224,8 +273,20 @@ class Renderer:
         self._static_vbo = ctx.buffer(self._vertex_bytes(m.vertices_m, m.normals, m.colors, m.vertex_instance))
         self._static_ibo = ctx.buffer(faces.astype("<u4").tobytes())
         self._static_vao, self._static_ivao = self._make_vaos(self._static_vbo, self._static_ibo)
-        self._static_pad_vao = self._shaded_vao(self.prog_pad, self._static_vbo, self._static_ibo)
+        self._static_vaos = {
+            key: self._shaded_vao(prog, self._static_vbo, self._static_ibo) for key, prog in self._progs.items()
+        }
+        self._static_vao = self._static_vaos[(False, 0)]
+        self._static_pad_vao = self._static_vaos[(True, 0)]
         self._indirect = ctx.buffer(reserve=max(1, n_tiles) * 20, dynamic=True)
+        # What casts static shadows: everything but the far-LOD tree crowns (the near ones stand in for them).
+        caster = faces[lod != LOD_FAR] if len(faces) else faces
+        self._shadow_ibo = ctx.buffer(caster.astype("<u4").tobytes() if len(caster) else b"\0" * 12)
+        self._shadow_vao = ctx.vertex_array(self.dprog, [(self._static_vbo, "3f 28x", "in_pos")], self._shadow_ibo)
+        self._shadow_caster_count = len(caster) * 3
+        lo_w = np.min(tris.reshape(-1, 3), axis=0) if len(tris) else np.zeros(3)
+        hi_w = np.max(tris.reshape(-1, 3), axis=0) if len(tris) else np.ones(3)
+        self._world_box = (lo_w, hi_w)
 
     def _upload_dynamic(self) -> None:
         """People and vehicles: their own vertex buffer, re-posed by :meth:`set_object_pose`."""
@@ -263,6 +324,14 @@ class Renderer:
         ibo = inverse.reshape(-1).astype("<u4").tobytes()
         self._dyn_ibo = ctx.buffer(ibo if ibo else b"\0" * 12)
         self._dyn_vao, self._dyn_ivao = self._make_vaos(self._dyn_vbo, self._dyn_ibo)
+        self._dyn_vaos = {
+            mode: self._shaded_vao(self._progs[(False, mode)], self._dyn_vbo, self._dyn_ibo) for mode in (0, 1, 2)
+        }
+        self._dyn_shadow_vao = self.ctx.vertex_array(self.dprog, [(self._dyn_vbo, "3f 28x", "in_pos")], self._dyn_ibo)
+        self._dyn_radius = {
+            iid: float(np.max(np.linalg.norm(self._dyn_local[sel], axis=1))) if len(sel) else 0.0
+            for iid, sel in self._dyn_slices.items()
+        }
         self._dyn_dirty = False
 
     # ------------------------------------------------------------------ dynamic objects
@@ -284,6 +353,30 @@ class Renderer:
         self._dyn_normals[sel] = (self._dyn_normals_local[sel] @ pose.rotation().T).astype(np.float32)
         self._poses[instance_id] = pose
         self._dyn_dirty = True
+
+    def set_object_shape(self, instance_id: int, local_vertices_m: npt.ArrayLike) -> None:
+        """Re-shape a person (a new pose or gait phase): its triangle-soup vertices in its local frame, in the order
+        the world mesh has them (``figures.person_vertices(...)[faces].reshape(-1, 3)``); the pose is kept.
+
+        Raises:
+            KeyError: the instance is not a person or vehicle of this world.
+            ValueError: the vertex count differs from the object's.
+        """
+        if instance_id not in self._dyn_slices:
+            msg = f"instance {instance_id} is not a movable object (person or vehicle) of this world"
+            raise KeyError(msg)
+        sel = self._dyn_slices[instance_id]
+        local = np.asarray(local_vertices_m, dtype=np.float64).reshape(-1, 3)
+        if len(local) != len(sel):
+            msg = f"instance {instance_id} has {len(sel)} vertices, got {len(local)}"
+            raise ValueError(msg)
+        tri = local.reshape(-1, 3, 3)
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True) + 1e-12
+        self._dyn_local[sel] = local
+        self._dyn_normals_local[sel] = np.repeat(nrm, 3, axis=0)
+        self._dyn_radius[instance_id] = float(np.max(np.linalg.norm(local, axis=1)))
+        self.set_object_pose(instance_id, self._poses[instance_id])
 
     # ------------------------------------------------------------------ rendering
     def _check_thread(self) -> None:
@@ -341,11 +434,19 @@ class Renderer:
         if shaded:
             view_bytes = view.T.astype("f4").tobytes()
             eye = tuple(float(v) for v in t_map_optical.translation_m)
-            for prog in (self.prog, self.prog_pad):
+            mode = self._shadow_mode
+            for pad in (False, True):
+                prog = self._progs[(pad, mode)]
                 prog["u_mvp"].write(mvp)
                 prog["u_view"].write(view_bytes)
                 prog["u_eye"].value = eye
                 prog["u_focal_px"].value = float(camera.fx)
+                if mode:
+                    _set(prog, "u_light0", self._light0.T.astype("f4").tobytes())
+                    _set(prog, "u_offset0_m", self._offset0_m)
+                if mode == 2:
+                    _set(prog, "u_light1", self._light1.T.astype("f4").tobytes())
+                    _set(prog, "u_offset1_m", self._offset1_m)
         else:
             self.iprog["u_mvp"].write(mvp)
         fbo = target.fbo if shaded else target.fbo_inst
@@ -368,7 +469,10 @@ class Renderer:
         """
         self._check_thread()
         with self.ctx:  # make this renderer's context current (several renderers may share a thread)
-            return self._render(camera, t_map_optical)
+            try:
+                return self._render(camera, t_map_optical)
+            finally:
+                self._shadow_mode = 0
 
     def _draw_scene(self, camera: CameraModel, t_map_optical: RigidTransform, *, shaded: bool) -> None:
         cmds, pad = self._draw_commands(camera, t_map_optical)
@@ -381,13 +485,14 @@ class Renderer:
                 # Runs of tiles with and without the pad, in the front-to-back order (same result as one call).
                 cuts = [0, *(np.flatnonzero(pad[1:] != pad[:-1]) + 1).tolist(), len(cmds)]
                 for a, b in itertools.pairwise(cuts):
-                    vao = self._static_pad_vao if pad[a] else self._static_vao
+                    vao = self._static_vaos[(bool(pad[a]), self._shadow_mode)]
                     vao.render_indirect(self._indirect, mode=self._mgl.TRIANGLES, count=b - a, first=a)
         if self.dynamic_triangles:
-            (self._dyn_vao if shaded else self._dyn_ivao).render(self._mgl.TRIANGLES)
+            (self._dyn_vaos[self._shadow_mode] if shaded else self._dyn_ivao).render(self._mgl.TRIANGLES)
         self.last_triangles = int(cmds[:, 0].sum() // 3) + self.dynamic_triangles if len(cmds) else 0
 
     def _render(self, camera: CameraModel, t_map_optical: RigidTransform) -> RenderedFrame:
+        self._prepare_shadows(camera, t_map_optical)
         target = self._setup_camera(camera, t_map_optical, shaded=True)
         self._draw_scene(camera, t_map_optical, shaded=True)
         self.ctx.depth_func = "<="
@@ -409,6 +514,135 @@ class Renderer:
             depth_m=np.ascontiguousarray(target.buf_depth[::-1]),
             instance_id=target.buf_inst[::-1].astype(np.uint16),
         )
+
+    # ------------------------------------------------------------------ shadows
+    _shadow_mode = 0
+    _offset0_m = 0.0
+    _offset1_m = 0.0
+    _light1 = np.eye(4)
+
+    def _light_basis(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        w = np.asarray(self.lighting.sun_dir, dtype=np.float64)
+        up = np.array([0.0, 0.0, 1.0]) if abs(w[2]) < 0.999 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(up, w)
+        u /= np.linalg.norm(u)
+        return u, np.cross(w, u), w
+
+    @staticmethod
+    def _ortho(
+        axes: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]],
+        centre: tuple[float, float],
+        half: tuple[float, float],
+        depth: tuple[float, float],
+    ) -> npt.NDArray[np.float64]:
+        """``map`` -> ``[0, 1]^3`` of an orthographic view along ``-w`` (depth 0 nearest the sun): axes ``(u, v, w)``,
+        the view's centre and half sizes along ``u`` and ``v``, and its depth range along ``w``."""
+        u, v, w = axes
+        (cu, cv), (hu, hv), (w_lo, w_hi) = centre, half, depth
+        m = np.zeros((4, 4))
+        m[0, :3], m[0, 3] = u / (2 * hu), 0.5 - cu / (2 * hu)
+        m[1, :3], m[1, 3] = v / (2 * hv), 0.5 - cv / (2 * hv)
+        m[2, :3], m[2, 3] = -w / (w_hi - w_lo), w_hi / (w_hi - w_lo)
+        m[3, 3] = 1.0
+        return m
+
+    @staticmethod
+    def _clip_from_unit(m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """The same projection into GL clip space ``[-1, 1]^3`` (for drawing the map)."""
+        to_clip = np.diag([2.0, 2.0, 2.0, 1.0])
+        to_clip[:3, 3] = -1.0
+        return to_clip @ m
+
+    def _shadow_target(self, size: int) -> tuple[Any, Any]:
+        tex = self.ctx.depth_texture((size, size))
+        tex.compare_func = "<="
+        tex.filter = (self._mgl.LINEAR, self._mgl.LINEAR)
+        tex.repeat_x = False
+        tex.repeat_y = False
+        return tex, self.ctx.framebuffer(depth_attachment=tex)
+
+    def _draw_depth(self, fbo: Any, light: npt.NDArray[np.float64], vao: Any, vertices: int | None = None) -> None:
+        fbo.use()
+        fbo.clear(depth=1.0)
+        self.ctx.enable(self._mgl.DEPTH_TEST)
+        self.ctx.disable(self._mgl.CULL_FACE)
+        self.ctx.depth_func = "<"
+        self.ctx.polygon_offset = (1.6, 4.0)
+        self.dprog["u_light"].write(self._clip_from_unit(light).T.astype("f4").tobytes())
+        if vertices is None:
+            vao.render(self._mgl.TRIANGLES)
+        else:
+            vao.render(self._mgl.TRIANGLES, vertices=vertices)
+        self.ctx.polygon_offset = (0.0, 0.0)
+
+    def _render_static_shadows(self) -> None:
+        """The static world seen from the sun, once per sun position: terrain, roads, buildings, trees."""
+        u, v, w = self._light_basis()
+        lo, hi = self._world_box
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        pu, pv, pw = corners @ u, corners @ v, corners @ w
+        pad = 2.0
+        hu, hv = (pu.max() - pu.min()) / 2 + pad, (pv.max() - pv.min()) / 2 + pad
+        self._light_depth = (float(pw.min()) - 20.0, float(pw.max()) + 20.0)
+        self._light0 = self._ortho((u, v, w), (float(pu.mean()), float(pv.mean())), (hu, hv), self._light_depth)
+        size = self.settings.shadow_map_px
+        if self._shadow_static is None:
+            self._shadow_static = self._shadow_target(size)
+        _, fbo = self._shadow_static
+        texel = 2.0 * max(hu, hv) / size
+        self._offset0_m = 1.0 * texel
+        self._draw_depth(fbo, self._light0, self._shadow_vao, self._shadow_caster_count)
+        self._shadow_static_key = tuple(self.lighting.sun_dir)
+        self.static_shadow_renders += 1
+
+    def _prepare_shadows(self, camera: CameraModel, t_map_optical: RigidTransform) -> None:
+        """Pick the shadow mode of this frame and render what it needs before the camera pass."""
+        self._shadow_mode = 0
+        self.last_object_shadows = False
+        if not self.lighting.shadows:
+            return
+        if self._shadow_static_key != tuple(self.lighting.sun_dir):
+            self._render_static_shadows()
+        self._shadow_mode = 1
+        tex0, _ = self._shadow_static
+        tex0.use(location=0)
+        if not self.dynamic_triangles:
+            return
+        # People and vehicles: a small map around where the camera looks, if any of them is there.
+        u, v, w = self._light_basis()
+        eye = t_map_optical.translation_m
+        axis = t_map_optical.rotation[:, 2]
+        ground = float(self.world.height_at(eye[0], eye[1]))
+        radius = self.settings.object_shadow_radius_m
+        reach = radius if axis[2] > -0.05 else min(radius, (eye[2] - ground) / -axis[2])
+        centre = eye + axis * reach if axis[2] < -0.05 else eye
+        cu, cv = float(centre @ u), float(centre @ v)
+        el = max(math.asin(min(1.0, max(0.05, float(w[2])))), 0.05)
+        hu, hv = radius, radius * math.sin(el) + 40.0 * math.cos(el)
+        near = False
+        for iid, pose in self._poses.items():
+            p = np.asarray(pose.position_m)
+            r = self._dyn_radius.get(iid, 0.0)
+            if abs(float(p @ u) - cu) < hu + r and abs(float(p @ v) - cv) < hv + r:
+                near = True
+                break
+        if not near:
+            return
+        self._light1 = self._ortho((u, v, w), (cu, cv), (hu, hv), self._light_depth)
+        size = self.settings.object_shadow_px
+        if self._shadow_dyn is None:
+            self._shadow_dyn = self._shadow_target(size)
+        tex1, fbo1 = self._shadow_dyn
+        if self._dyn_dirty:
+            self._dyn_vbo.write(
+                self._vertex_bytes(self._dyn_world, self._dyn_normals, self._dyn_colors, self._dyn_inst)
+            )
+            self._dyn_dirty = False
+        self._draw_depth(fbo1, self._light1, self._dyn_shadow_vao)
+        self._offset1_m = 1.0 * 2.0 * max(hu, hv) / size
+        tex1.use(location=1)
+        self._shadow_mode = 2
+        self.last_object_shadows = True
 
     def render_instances(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint16]:
         """Only the instance-id image of :meth:`render` (0 where nothing was hit), unshaded.
@@ -455,8 +689,14 @@ class Renderer:
         for iid, query in zip(instance_ids, self._queries, strict=False):
             first, count = self._dyn_ranges[iid]
             target.fbo_inst.clear(depth=1.0)
+            # An articulated figure overlaps itself (an arm in front of the chest): lay down its depth first,
+            # then count only the front-most fragment of each pixel, so every pixel counts once.
+            self.ctx.depth_func = "<"
+            self._dyn_ivao.render(self._mgl.TRIANGLES, vertices=count, first=first)
+            self.ctx.depth_func = "<="
             with query:
                 self._dyn_ivao.render(self._mgl.TRIANGLES, vertices=count, first=first)
+        self.ctx.depth_func = "<"
         # Read the results only after every query was issued: each read waits for the GPU (llvmpipe) to finish.
         return {iid: int(q.samples) for iid, q in zip(instance_ids, self._queries, strict=False)}
 
@@ -466,4 +706,8 @@ class Renderer:
             for t in self._targets.values():
                 t.release()
             self._targets.clear()
+            for pair in (self._shadow_static, self._shadow_dyn):
+                if pair is not None:
+                    pair[1].release()
+                    pair[0].release()
         self.ctx.release()

@@ -4,9 +4,14 @@ Outputs (``location``): 0 RGBA8 color, 1 R32F z-depth in metres, 2 R32UI instanc
 The instance-only pass (``INSTANCE_*``) writes just the R32UI ids at location 0:
 ground-truth detections need nothing else, and shading is what costs.
 The color is the vertex base color times a world-space value-noise texture (three
-octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
-term, with a little distance haze.  Around home the terrain gets a concrete landing
-pad with an "H".
+octaves, faded out where a texel gets smaller than a pixel), lit by a sun, a sky and an
+ambient term (colours from :class:`~uav_sim_bridge.core.lighting.Lighting`), faded into
+haze or fog with distance.  Around home the terrain gets a concrete landing pad with an "H".
+
+Shadows (``#define SHADOWS``): the sun term is multiplied by a lookup in a depth map of the
+static world seen from the sun (rendered once per sun position, :data:`DEPTH_VS`), and with
+``DYN_SHADOWS`` also in a small map of the people and vehicles around the camera (rendered
+per frame). Both lookups are hardware-filtered (2x2 percentage closer).
 
 Speed (Mesa llvmpipe runs every fragment shader on the CPU, and a branch costs both of its
 sides): the haze is computed per vertex (it changes by < 1e-4 across a triangle), and the
@@ -21,7 +26,18 @@ MAIN_VS = """
 uniform mat4 u_mvp;
 uniform mat4 u_view;
 uniform vec3 u_eye;
-uniform float u_haze_m;
+uniform float u_haze_per_m;
+uniform float u_haze_max;
+#ifdef SHADOWS
+uniform mat4 u_light0;       // map -> static shadow map [0, 1]^3
+uniform float u_offset0_m;   // receiver offset along its normal (against self-shadowing)
+out vec3 v_ls0;
+#ifdef DYN_SHADOWS
+uniform mat4 u_light1;       // map -> people/vehicles shadow map around the camera
+uniform float u_offset1_m;
+out vec3 v_ls1;
+#endif
+#endif
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec3 in_col;
@@ -38,7 +54,15 @@ void main() {
     v_col = in_col;
     v_inst = in_inst;
     v_z = -(u_view * vec4(in_pos, 1.0)).z;
-    v_haze = 1.0 - exp(-length(in_pos - u_eye) / u_haze_m);
+    v_haze = u_haze_max * (1.0 - exp(-length(in_pos - u_eye) * u_haze_per_m));
+#ifdef SHADOWS
+    // orthographic light projections are affine: interpolating them per vertex is exact (and on llvmpipe
+    // cheaper than a matrix per pixel)
+    v_ls0 = (u_light0 * vec4(in_pos + in_nrm * u_offset0_m, 1.0)).xyz;
+#ifdef DYN_SHADOWS
+    v_ls1 = (u_light1 * vec4(in_pos + in_nrm * u_offset1_m, 1.0)).xyz;
+#endif
+#endif
     gl_Position = u_mvp * vec4(in_pos, 1.0);
 }
 """
@@ -46,11 +70,22 @@ void main() {
 MAIN_FS = """
 #version 330
 uniform vec3 u_sun;
+uniform vec3 u_sun_rgb;
+uniform vec3 u_sky_rgb;
+uniform vec3 u_ambient_rgb;
 uniform float u_focal_px;
 uniform float u_texture_gain;
 uniform float u_pad_half_m;
 uniform uint u_pad_instance;
 uniform vec3 u_haze_color;
+#ifdef SHADOWS
+uniform sampler2DShadow u_shadow0;
+in vec3 v_ls0;
+#ifdef DYN_SHADOWS
+uniform sampler2DShadow u_shadow1;
+in vec3 v_ls1;
+#endif
+#endif
 in vec3 v_pos;
 in vec3 v_nrm;
 in vec3 v_col;
@@ -105,9 +140,17 @@ void main() {
     if (v_inst == u_pad_instance) base = pad(base);
 #endif
     float sun = max(dot(n, u_sun), 0.0);
+#ifdef SHADOWS
+    // hardware 2x2 percentage-closer filtering; a reference outside the map's depth range is lit
+    float lit = texture(u_shadow0, vec3(v_ls0.xy, clamp(v_ls0.z, 0.0, 1.0)));
+#ifdef DYN_SHADOWS
+    lit = min(lit, texture(u_shadow1, vec3(v_ls1.xy, clamp(v_ls1.z, 0.0, 1.0))));
+#endif
+    sun *= lit;
+#endif
     float sky = 0.5 + 0.5 * n.z;
-    vec3 lit = base * tex * (0.78 * sun + 0.34 * sky + 0.06);
-    f_color = vec4(clamp(mix(lit, u_haze_color, 0.55 * v_haze), 0.0, 1.0), 1.0);
+    vec3 lit_rgb = base * tex * (u_sun_rgb * sun + u_sky_rgb * sky + u_ambient_rgb);
+    f_color = vec4(clamp(mix(lit_rgb, u_haze_color, v_haze), 0.0, 1.0), 1.0);
     f_depth = v_z;
     f_inst = v_inst;
 }
@@ -135,7 +178,10 @@ uniform mat3 u_r_map_optical;
 uniform vec4 u_k;       // fx fy cx cy
 uniform float u_height;
 uniform vec3 u_sun;
-uniform vec3 u_haze_color;
+uniform vec3 u_zenith;
+uniform vec3 u_horizon;
+uniform vec3 u_glow;
+uniform float u_sun_disc;
 layout(location = 0) out vec4 f_color;
 layout(location = 1) out float f_depth;
 layout(location = 2) out uint f_inst;
@@ -145,9 +191,10 @@ void main() {
     vec3 ray = vec3((px.x - u_k.z) / u_k.x, (px.y - u_k.w) / u_k.y, 1.0);
     vec3 d = normalize(u_r_map_optical * ray);
     float t = clamp(d.z, 0.0, 1.0);
-    vec3 zenith = vec3(0.30, 0.50, 0.82);
-    vec3 c = mix(u_haze_color, zenith, pow(t, 0.6));
-    c += vec3(1.0, 0.95, 0.8) * pow(max(dot(d, u_sun), 0.0), 200.0);
+    vec3 c = mix(u_horizon, u_zenith, pow(t, 0.6));
+    float toward = max(dot(d, u_sun), 0.0);
+    c += u_glow * pow(toward, 6.0) * (1.0 - 0.7 * t);
+    c += u_sun_disc * vec3(1.0, 0.95, 0.8) * pow(toward, 200.0);
     f_color = vec4(clamp(c, 0.0, 1.0), 1.0);
     f_depth = uintBitsToFloat(0x7FC00000u);  // quiet NaN: no return
     f_inst = 0u;
@@ -171,4 +218,16 @@ INSTANCE_FS = """
 flat in uint v_inst;
 layout(location = 0) out uint f_inst;
 void main() { f_inst = v_inst; }
+"""
+
+DEPTH_VS = """
+#version 330
+uniform mat4 u_light;
+in vec3 in_pos;
+void main() { gl_Position = u_light * vec4(in_pos, 1.0); }
+"""
+
+DEPTH_FS = """
+#version 330
+void main() {}
 """

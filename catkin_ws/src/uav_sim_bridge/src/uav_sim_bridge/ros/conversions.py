@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import math
+
 import rospy
-from geometry_msgs.msg import Point, Quaternion, TransformStamped, Vector3
+from geometry_msgs.msg import Point, Pose, Quaternion, TransformStamped, Vector3
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from uav_common.frames import wxyz_to_ros_xyzw
-from uav_msgs.msg import Collision, Detection, DetectionArray, SimState
+from uav_msgs.msg import Collision, Detection, DetectionArray, ObjectStateArray, SimState
+from uav_msgs.msg import ObjectState as ObjectStateMsg
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.detections import GroundTruthDetection
+from uav_sim_bridge.core.objects import ObjectState
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.vehicle_state import VehicleState
 
@@ -22,6 +26,7 @@ __all__ = [
     "collision_msg",
     "detection_array",
     "header",
+    "object_states_msg",
     "odometry",
     "quaternion",
     "sim_state",
@@ -102,6 +107,32 @@ def detection_array(hdr: Header, camera: str, dets: list[GroundTruthDetection]) 
                 range_m=d.range_m,
                 visible_fraction=d.visible_fraction,
                 position=Point(x=x, y=y, z=z),
+            )
+        )
+    return out
+
+
+def object_states_msg(t_s: float, frame_id: str, states: list[ObjectState]) -> ObjectStateArray:
+    """The moving people and vehicles of one instant."""
+    out = ObjectStateArray(header=header(t_s, frame_id))
+    for st in states:
+        o = st.obj
+        x, y, z = o.pose.position_m
+        half = 0.5 * o.pose.yaw_rad
+        pose = Pose(
+            position=Point(x=x, y=y, z=z), orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+        )
+        vx, vy, vz = st.velocity_mps
+        out.objects.append(
+            ObjectStateMsg(
+                instance_id=o.instance_id,
+                name=o.name,
+                class_name=o.object_class.label,
+                kind=o.kind,
+                pose=pose,
+                size=Vector3(x=o.size_m[0], y=o.size_m[1], z=o.size_m[2]),
+                velocity=Vector3(x=vx, y=vy, z=vz),
+                moving=st.moving,
             )
         )
     return out
