@@ -199,6 +199,28 @@ class BagKit:
             stop_reason=stop_reason,
         )
 
+    def object_states(self, t: float, objects: list[tuple[int, str, float, float, float]]) -> Any:
+        """``(instance_id, name, x, y, yaw)`` of moving objects (people 0.5 x 0.5 x 1.7 m, vehicles 4.5 x 1.8 x 1.5)."""
+        out = []
+        for iid, name, x, y, yaw in objects:
+            person = name.startswith("person")
+            size = (0.5, 0.5, 1.7) if person else (4.5, 1.8, 1.5)
+            q = self.T("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+            pose = self.T("geometry_msgs/msg/Pose")(position=self.point(x, y, 0.0), orientation=q)
+            out.append(
+                self.T("uav_msgs/msg/ObjectState")(
+                    instance_id=iid,
+                    name=name,
+                    class_name="person" if person else "vehicle",
+                    kind="walking" if person else "car",
+                    pose=pose,
+                    size=self.T("geometry_msgs/msg/Vector3")(x=size[0], y=size[1], z=size[2]),
+                    velocity=self.T("geometry_msgs/msg/Vector3")(x=1.0, y=0.0, z=0.0),
+                    moving=True,
+                )
+            )
+        return self.T("uav_msgs/msg/ObjectStateArray")(header=self.header(t), objects=out)
+
     def metrics(self, t: float, values: dict[str, float], summary: dict[str, Any] | None = None) -> Any:
         fields = {
             "mapped_pct": 0.0,
@@ -240,6 +262,9 @@ def write_synthetic_run(path: Path, *, duration_s: float = 60.0, with_snapshots:
         if k % 5 == 0:
             kit.write("/scenario/status", t, kit.status(t, "SEARCHING" if rel > 10 else "TAKEOFF", found=rel > 50))
         kit.write("/uav/ground_truth/odom", t, kit.odom(t, 0.0, y, z))
+        if k % 2 == 0:
+            movers = [(7, "person_0003", 20.0 + 1.2 * rel, -30.0, 0.0), (9, "vehicle_0001", -50.0, 8.0 * rel, 1.57)]
+            kit.write("/sim/object_states", t, kit.object_states(t, movers))
         if k % 10 == 0:
             kit.write("/uav/battery", t, kit.battery(t, 100.0 - 0.2 * rel, 16.8 - 0.01 * rel))
             kit.write("/autonomy/goal_reason", t, kit.goal_reason(t, 0.0, y - 50.0))
@@ -250,6 +275,14 @@ def write_synthetic_run(path: Path, *, duration_s: float = 60.0, with_snapshots:
                 "flight": {"distance_m": 4.0 * rel, "altitude_floor_m": 10.0},
                 "detection": {"person_first_in_view": {"t_s": 40.0}, "person_first_detected": {"t_s": 40.0}},
                 "events": [{"t_s": 40.0, "what": "person in view"}],
+                "moving_objects": {
+                    "movers": 2,
+                    "distance_m": 5.0 * rel,
+                    "mapped_voxels": 10.0 * rel,
+                    "ghost_voxels": 2.0 * rel,
+                    "cleared_voxels": 6.0 * rel,
+                    "cleared_fraction": 0.75,
+                },
             }
             kit.write(
                 "/scenario/metrics",

@@ -300,6 +300,7 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         "/autonomy/target_point",
         "/detections/ground_truth",
         "/sim/collision",
+        "/sim/object_states",
         "/map_server/insert_stats",
         "/scenario/config",
         "/scenario/status",
@@ -451,6 +452,7 @@ REPLAYED_TOPICS = (
     "/autonomy/weights",
     "/detections/ground_truth",
     "/sim/collision",
+    "/sim/object_states",
     "/scenario/status",
 )
 

@@ -29,6 +29,8 @@ _HEADLINES = (
     ("collisions.count", "collisions"),
     ("detection.person_first_detected.t_s", "person first detected (s)"),
     ("tracking.mota", "tracking MOTA"),
+    ("moving_objects.movers", "moving people and vehicles"),
+    ("moving_objects.cleared_fraction", "their trail voxels the map cleared (fraction)"),
 )
 
 _CSS = """

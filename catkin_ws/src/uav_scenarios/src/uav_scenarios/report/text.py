@@ -53,4 +53,11 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
             f"person first detected {f('detection.person_first_detected.t_s', ' s')} at "
             f"{f('detection.person_first_detected.range_m', ' m', 0)}, tracking MOTA {f('tracking.mota', '', 3)}"
         ),
+        (
+            f"  moving objects {f('moving_objects.movers', '', 0)}, {f('moving_objects.distance_m', ' m', 0)} "
+            "travelled; voxels they left that the map had marked occupied: "
+            f"{f('moving_objects.cleared_voxels', '', 0)} "
+            f"cleared, {f('moving_objects.ghost_voxels', '', 0)} still occupied "
+            f"({f('moving_objects.cleared_fraction', '', 2)} cleared)"
+        ),
     ]

@@ -104,8 +104,8 @@ class TrailTracker:
     _current: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     _mapped: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     _last: dict[int, tuple[float, float]] = field(default_factory=dict)
-    _distance_m: float = 0.0
-    _movers: set[int] = field(default_factory=set)
+    distance_m: float = 0.0
+    movers: set[int] = field(default_factory=set)
     last: TrailStats | None = None
 
     def add(self, record: ObjectStateRecord) -> None:
@@ -119,9 +119,9 @@ class TrailTracker:
             keys = box_voxel_keys((x, y, z), yaw, (length, width, height), self.resolution_m)
             current.append(keys)
             if iid in self._last:
-                self._distance_m += math.hypot(x - self._last[iid][0], y - self._last[iid][1])
+                self.distance_m += math.hypot(x - self._last[iid][0], y - self._last[iid][1])
             self._last[iid] = (x, y)
-            self._movers.add(iid)
+            self.movers.add(iid)
         self._current = sorted_unique(np.concatenate(current)) if current else np.zeros(0, np.int64)
         self._pending.append(self._current)
         if len(self._pending) > 50:
@@ -143,8 +143,8 @@ class TrailTracker:
         cleared = np.setdiff1d(np.intersect1d(self._mapped, left, assume_unique=True), occupied, assume_unique=True)
         self.last = TrailStats(
             t_s,
-            len(self._movers),
-            self._distance_m,
+            len(self.movers),
+            self.distance_m,
             int(visited.size),
             int(left.size),
             int(self._mapped.size),
