@@ -198,34 +198,28 @@ class BridgeEngine:
             self._synced_t = t_s
             return
         self._synced_t = t_s
-        states = self.motion.states_at(t_s, self.world.terrain)
-        walk_ids, walk_obj, walk_phase = [], [], []
+        states = [st for st in self.motion.states_at(t_s, self.world.terrain) if st.instance_id not in self._moved_ids]
+        walkers = [st for st in states if self._objects[st.instance_id].object_class is ObjectClass.PERSON]
+        if walkers:  # the gait: new limb positions first (one batch), then every mover's pose
+            objs = [self._objects[st.instance_id] for st in walkers]
+            shapes = np.array([o.shape if len(o.shape) == 2 else (1.75, 1.0) for o in objs])
+            walking = int(PersonPose.WALKING)
+            centres = np.array([self._centre[(o.instance_id, walking)] for o in objs])
+            verts = figures.person_vertices(
+                shapes[:, 0],
+                shapes[:, 1],
+                np.full(len(objs), walking),
+                [st.gait_phase for st in walkers],
+                centre_xy=centres,
+            )
+            faces, _ = figures.person_faces()
+            self.renderer.set_object_shapes([o.instance_id for o in objs], verts[:, faces].reshape(len(objs), -1, 3))
         for st in states:
             iid = st.instance_id
-            if iid in self._moved_ids:
-                continue
             self._moving[iid] = st
             self.renderer.set_object_pose(iid, st.pose)
             self.collisions.set_object_pose(iid, st.pose)
             self._objects[iid] = dataclasses.replace(self._objects[iid], pose=st.pose)
-            if self._objects[iid].object_class is ObjectClass.PERSON:
-                walk_ids.append(iid)
-                walk_obj.append(self._objects[iid])
-                walk_phase.append(st.gait_phase)
-        if walk_ids:
-            shapes = np.array([o.shape if len(o.shape) == 2 else (1.75, 1.0) for o in walk_obj])
-            centres = np.array([self._centre[(iid, int(PersonPose.WALKING))] for iid in walk_ids])
-            verts = figures.person_vertices(
-                shapes[:, 0],
-                shapes[:, 1],
-                np.full(len(walk_ids), int(PersonPose.WALKING)),
-                walk_phase,
-                centre_xy=centres,
-            )
-            faces, _ = figures.person_faces()
-            soups = verts[:, faces].reshape(len(walk_ids), -1, 3)
-            for iid, soup in zip(walk_ids, soups, strict=True):
-                self.renderer.set_object_shape(iid, soup)
         self._spheres = None
 
     def _movers_near(self, position_m: npt.NDArray[np.float64], margin_m: float) -> bool:

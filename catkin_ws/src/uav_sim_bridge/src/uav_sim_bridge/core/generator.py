@@ -418,8 +418,9 @@ def _add_people(
         return
     poses = _person_poses(cfg, n, rng)
     lo, hi = cfg.people.height_m
-    heights = np.clip(rng.normal((lo + hi) / 2, (hi - lo) / 4, n), lo, hi)
-    builds = rng.uniform(0.88, 1.18, n)
+    # rounded as the object records store them: the mesh and the box are built from exactly those values
+    heights = np.round(np.clip(rng.normal((lo + hi) / 2, (hi - lo) / 4, n), lo, hi), 4)
+    builds = np.round(rng.uniform(0.88, 1.18, n), 4)
     colors = figures.random_person_colors(n, rng)
     sizes = figures.person_boxes(heights, builds, poses)
     iids = np.array(
@@ -429,14 +430,11 @@ def _add_people(
                 ObjectPose((float(p[0]), float(p[1]), float(p[2])), float(a)),
                 (float(sz[0]), float(sz[1]), float(sz[2])),
                 kind=PersonPose(int(ps)).label,
-                shape=(round(float(h), 4), round(float(b), 4)),
+                shape=(float(h), float(b)),
             )
             for p, a, sz, ps, h, b in zip(positions, yaws, sizes, poses, heights, builds, strict=True)
         ]
     )
-    # the stored shape is rounded: build the mesh from exactly what the object records say
-    heights = np.round(heights, 4)
-    builds = np.round(builds, 4)
     local = figures.person_vertices(heights, builds, poses)
     faces, roles = figures.person_faces()
     world = np.stack(

@@ -210,11 +210,28 @@ class Renderer:
             self.sky["u_glow"].value = lt.glow_rgb
             self.sky["u_sun_disc"].value = lt.sun_disc
 
-    def _vertex_bytes(self, verts: npt.NDArray[np.float32], normals: npt.NDArray[np.float32],
-                      colors: npt.NDArray[np.float32], inst: npt.NDArray[np.uint32]) -> bytes:  # fmt: skip
+    @staticmethod
+    def _vertex_records(verts: npt.NDArray[np.float32], normals: npt.NDArray[np.float32],
+                        colors: npt.NDArray[np.float32], inst: npt.NDArray[np.uint32]) -> npt.NDArray[Any]:  # fmt: skip
         rec = np.empty(len(verts), dtype=[("p", "<f4", 3), ("n", "<f4", 3), ("c", "<f4", 3), ("i", "<u4")])
         rec["p"], rec["n"], rec["c"], rec["i"] = verts, normals, colors, inst
-        return rec.tobytes()
+        return rec
+
+    def _vertex_bytes(self, verts: npt.NDArray[np.float32], normals: npt.NDArray[np.float32],
+                      colors: npt.NDArray[np.float32], inst: npt.NDArray[np.uint32]) -> bytes:  # fmt: skip
+        return bytes(self._vertex_records(verts, normals, colors, inst).tobytes())
+
+    def _upload_dynamic_changes(self) -> None:
+        """Write the vertex runs of the people and vehicles moved since the last upload."""
+        if not self._dyn_dirty:
+            return
+        for iid in self._dyn_changed:
+            a, b = self._dyn_span[iid]
+            self._dyn_rec["p"][a:b] = self._dyn_world[a:b]
+            self._dyn_rec["n"][a:b] = self._dyn_normals[a:b]
+            self._dyn_vbo.write(self._dyn_rec[a:b].tobytes(), offset=a * self._dyn_rec.itemsize)
+        self._dyn_changed.clear()
+        self._dyn_dirty = False
 
     def _shaded_vao(self, prog: Any, vbo: Any, ibo: Any) -> Any:
         return self.ctx.vertex_array(prog, [(vbo, "3f 3f 3f 1u", "in_pos", "in_nrm", "in_col", "in_inst")], ibo)
@@ -313,14 +330,21 @@ class Renderer:
         for iid in np.unique(self._dyn_inst):
             obj = w.object(int(iid))
             sel = np.flatnonzero(self._dyn_inst == iid)
+            if len(sel) and sel[-1] - sel[0] + 1 != len(sel):
+                msg = f"the vertices of object {int(iid)} are not one run of the world mesh"
+                raise RenderError(msg)
             self._dyn_slices[int(iid)] = sel
             self._poses[int(iid)] = obj.pose
             self._dyn_local[sel] = obj.pose.to_local(self._dyn_world[sel])
             self._dyn_normals_local[sel] = self._dyn_normals[sel] @ obj.pose.rotation()
         self.dynamic_triangles = len(dyn_faces)
         ctx = self.ctx
-        data = self._vertex_bytes(self._dyn_world, self._dyn_normals, self._dyn_colors, self._dyn_inst)
+        self._dyn_rec = self._vertex_records(self._dyn_world, self._dyn_normals, self._dyn_colors, self._dyn_inst)
+        data = self._dyn_rec.tobytes()
         self._dyn_vbo = ctx.buffer(data if data else b"\0" * 40, dynamic=True)
+        # each object's vertices are one run of the buffer: only the runs of moved objects are uploaded
+        self._dyn_span = {iid: (int(sel[0]), int(sel[-1]) + 1) for iid, sel in self._dyn_slices.items() if len(sel)}
+        self._dyn_changed: set[int] = set()
         ibo = inverse.reshape(-1).astype("<u4").tobytes()
         self._dyn_ibo = ctx.buffer(ibo if ibo else b"\0" * 12)
         self._dyn_vao, self._dyn_ivao = self._make_vaos(self._dyn_vbo, self._dyn_ibo)
@@ -349,9 +373,12 @@ class Renderer:
             msg = f"instance {instance_id} is not a movable object (person or vehicle) of this world"
             raise KeyError(msg)
         sel = self._dyn_slices[instance_id]
-        self._dyn_world[sel] = pose.to_world(self._dyn_local[sel]).astype(np.float32)
-        self._dyn_normals[sel] = (self._dyn_normals_local[sel] @ pose.rotation().T).astype(np.float32)
+        a, b = self._dyn_span[instance_id]  # sel is the run a..b
+        rot = pose.rotation()
+        self._dyn_world[a:b] = self._dyn_local[a:b] @ rot.T + np.asarray(pose.position_m)
+        self._dyn_normals[a:b] = self._dyn_normals_local[a:b] @ rot.T
         self._poses[instance_id] = pose
+        self._dyn_changed.add(instance_id)
         self._dyn_dirty = True
 
     def set_object_shape(self, instance_id: int, local_vertices_m: npt.ArrayLike) -> None:
@@ -370,13 +397,36 @@ class Renderer:
         if len(local) != len(sel):
             msg = f"instance {instance_id} has {len(sel)} vertices, got {len(local)}"
             raise ValueError(msg)
-        tri = local.reshape(-1, 3, 3)
-        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True) + 1e-12
-        self._dyn_local[sel] = local
-        self._dyn_normals_local[sel] = np.repeat(nrm, 3, axis=0)
-        self._dyn_radius[instance_id] = float(np.max(np.linalg.norm(local, axis=1)))
+        self.set_object_shapes([instance_id], local[None])
         self.set_object_pose(instance_id, self._poses[instance_id])
+
+    def set_object_shapes(self, instance_ids: list[int], local_vertices_m: npt.ArrayLike) -> None:
+        """:meth:`set_object_shape` of several people with the same vertex count (``(K, V, 3)``), without
+        re-posing them: call :meth:`set_object_pose` for each afterwards (walkers move every frame anyway).
+
+        Raises:
+            KeyError: an instance is not a person or vehicle of this world.
+            ValueError: a vertex count differs from the object's.
+        """
+        local = np.asarray(local_vertices_m, dtype=np.float64)
+        if not len(instance_ids):
+            return
+        tri = local.reshape(len(instance_ids), -1, 3, 3)
+        nrm = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+        nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True) + 1e-12
+        normals = np.repeat(nrm, 3, axis=1)
+        radius = np.max(np.linalg.norm(local, axis=-1), axis=1)
+        for k, iid in enumerate(instance_ids):
+            if iid not in self._dyn_span:
+                msg = f"instance {iid} is not a movable object (person or vehicle) of this world"
+                raise KeyError(msg)
+            a, b = self._dyn_span[iid]
+            if b - a != local.shape[1]:
+                msg = f"instance {iid} has {b - a} vertices, got {local.shape[1]}"
+                raise ValueError(msg)
+            self._dyn_local[a:b] = local[k]
+            self._dyn_normals_local[a:b] = normals[k]
+            self._dyn_radius[iid] = float(radius[k])
 
     # ------------------------------------------------------------------ rendering
     def _check_thread(self) -> None:
@@ -454,11 +504,7 @@ class Renderer:
         self.ctx.enable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE)
         self.ctx.depth_func = "<"
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        if self._dyn_dirty:
-            self._dyn_vbo.write(
-                self._vertex_bytes(self._dyn_world, self._dyn_normals, self._dyn_colors, self._dyn_inst)
-            )
-            self._dyn_dirty = False
+        self._upload_dynamic_changes()
         return target
 
     def render(self, camera: CameraModel, t_map_optical: RigidTransform) -> RenderedFrame:
@@ -633,11 +679,7 @@ class Renderer:
         if self._shadow_dyn is None:
             self._shadow_dyn = self._shadow_target(size)
         tex1, fbo1 = self._shadow_dyn
-        if self._dyn_dirty:
-            self._dyn_vbo.write(
-                self._vertex_bytes(self._dyn_world, self._dyn_normals, self._dyn_colors, self._dyn_inst)
-            )
-            self._dyn_dirty = False
+        self._upload_dynamic_changes()
         self._draw_depth(fbo1, self._light1, self._dyn_shadow_vao)
         self._offset1_m = 1.0 * 2.0 * max(hu, hv) / size
         tex1.use(location=1)
