@@ -217,8 +217,8 @@ def motion_field_px(  # noqa: PLR0917 - the intrinsics are four numbers
     if not full:
         return du, dv
     return (
-        cv2.resize(du, (w, h), interpolation=cv2.INTER_LINEAR),
-        cv2.resize(dv, (w, h), interpolation=cv2.INTER_LINEAR),
+        np.asarray(cv2.resize(du, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32),
+        np.asarray(cv2.resize(dv, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32),
     )
 
 
@@ -300,9 +300,9 @@ class CameraEffects:
         if cfg.noise is not None and self._bank is not None:
             img = self._expose_with_noise(img, cfg.noise, scale, exposure_s, gain)
         elif self._vignette is not None:
-            img = cv2.multiply(img, self._vignette, scale=scale, dtype=cv2.CV_8U)
+            img = _u8(cv2.multiply(img, self._vignette, scale=scale, dtype=cv2.CV_8U))
         elif scale != 1.0:
-            img = cv2.convertScaleAbs(img, alpha=scale)
+            img = _u8(cv2.convertScaleAbs(img, alpha=scale))
         if cfg.jpeg_quality is not None:
             img = _jpeg(img, cfg.jpeg_quality)
         if img is color_rgb:
@@ -370,8 +370,8 @@ class CameraEffects:
         if streak < 0.5:  # less than half a pixel anywhere: invisible
             return img, streak
         h, w = img.shape[:2]
-        du = cv2.resize(du, (w, h), interpolation=cv2.INTER_LINEAR)
-        dv = cv2.resize(dv, (w, h), interpolation=cv2.INTER_LINEAR)
+        du = np.asarray(cv2.resize(du, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32)
+        dv = np.asarray(cv2.resize(dv, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32)
         if self._grid is None:
             gx, gy = np.meshgrid(np.arange(self.width, dtype=np.float32), np.arange(self.height, dtype=np.float32))
             self._grid = (gx, gy)
@@ -382,7 +382,7 @@ class CameraEffects:
             tau = np.float32(k / (n - 1) - 0.5)
             sample = cv2.remap(img, gx - tau * du, gy - tau * dv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
             cv2.accumulate(sample, acc)
-        return cv2.convertScaleAbs(acc, alpha=1.0 / n), streak
+        return _u8(cv2.convertScaleAbs(acc, alpha=1.0 / n)), streak
 
     def _expose_with_noise(
         self, img: npt.NDArray[np.uint8], n: SensorNoiseConfig, scale: float, exposure_s: float, gain: float
@@ -403,7 +403,7 @@ class CameraEffects:
         values = np.arange(256, dtype=np.float32)
         lut = np.sqrt(values * expo * per_dn + n.read_noise_e**2) / per_dn * gain
         std = cv2.LUT(img, lut.astype(np.float32).reshape(256, 1))
-        return cv2.add(signal, cv2.multiply(std, normals), dtype=cv2.CV_8U)
+        return _u8(cv2.add(signal, cv2.multiply(std, normals), dtype=cv2.CV_8U))
 
 
 def _jpeg(rgb: npt.NDArray[np.uint8], quality: int) -> npt.NDArray[np.uint8]:
@@ -411,4 +411,9 @@ def _jpeg(rgb: npt.NDArray[np.uint8], quality: int) -> npt.NDArray[np.uint8]:
     if not ok:  # pragma: no cover - OpenCV always encodes a valid uint8 image
         msg = "JPEG encoding failed"
         raise RuntimeError(msg)
-    return cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return _u8(cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB))
+
+
+def _u8(img: object) -> npt.NDArray[np.uint8]:
+    """An OpenCV result as the uint8 array it is."""
+    return np.asarray(img, dtype=np.uint8)

@@ -161,7 +161,7 @@ _SEG_FACES = np.array(
 
 
 def _unit(v: FloatArray) -> FloatArray:
-    return v / (np.linalg.norm(v, axis=-1, keepdims=True) + 1e-12)
+    return np.asarray(v / (np.linalg.norm(v, axis=-1, keepdims=True) + 1e-12), dtype=np.float64)
 
 
 def _segment(  # noqa: PLR0917 - a segment is its two ends, its side axis and its two cross-sections

@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from uav_sim_bridge.core.environment import EnvironmentConfig
 
@@ -138,7 +139,7 @@ class Lighting:
 def _air_mass(elevation_deg: float) -> float:
     """Kasten and Young's relative air mass (finite at the horizon)."""
     e = max(elevation_deg, -0.5)
-    return 1.0 / (math.sin(math.radians(e)) + 0.50572 * (e + 6.07995) ** -1.6364)
+    return float(1.0 / (math.sin(math.radians(e)) + 0.50572 * (e + 6.07995) ** -1.6364))
 
 
 def _smoothstep(e0: float, e1: float, x: float) -> float:
@@ -146,7 +147,7 @@ def _smoothstep(e0: float, e1: float, x: float) -> float:
     return t * t * (3.0 - 2.0 * t)
 
 
-def _rgb(v: np.ndarray) -> Rgb:
+def _rgb(v: npt.NDArray[np.float64]) -> Rgb:
     c = np.clip(v, 0.0, 4.0)
     return (float(c[0]), float(c[1]), float(c[2]))
 

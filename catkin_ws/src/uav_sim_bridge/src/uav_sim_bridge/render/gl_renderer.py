@@ -150,6 +150,7 @@ class Renderer:
         self._shadow_static: Any = None  # (texture, framebuffer) of the static shadow map, made on demand
         self._shadow_static_key: tuple[float, ...] | None = None  # the sun it was rendered for
         self._shadow_dyn: Any = None
+        self._dyn_dirty = False
         self._light0 = np.eye(4)
         self._light_depth = (0.0, 1.0)
         self.static_shadow_renders = 0  # how often the static shadow map was rendered (once per sun)
