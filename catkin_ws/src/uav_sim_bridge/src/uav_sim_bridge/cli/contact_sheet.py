@@ -36,9 +36,10 @@ __all__ = ["contact_sheet"]
 
 U8 = npt.NDArray[np.uint8]
 _TILE_W, _TILE_H = 480, 360
-_CROP = 72  # camera pixels around a close-up subject
-_ZOOM = 3
-_RANGES_M = (30.0, 60.0, 100.0)
+_TILE = 192  # close-up tile side, screen pixels
+#: Slant ranges of the close-ups and the camera pixels around the subject each tile shows (enlarged without
+#: smoothing to the tile): 12 m to see the shapes, then the 30, 60 and 100 m a detector has to cope with.
+_RANGES_M = {12.0: 96, 30.0: 64, 60.0: 48, 100.0: 32}
 _BG = (24, 28, 34)
 
 
@@ -153,7 +154,7 @@ def _closeup_tiles(world: World, renderer: Renderer) -> tuple[list[list[U8]], li
     names: list[str] = []
     park = [(sx + 400.0 * (i + 1), sy + 400.0) for i in range(8)]
     subjects = _subjects(world)
-    for i, (label, obj, pose) in enumerate(subjects):  # everyone off stage first
+    for i, (_label_text, obj, _pose) in enumerate(subjects):  # everyone off stage first
         renderer.set_object_pose(obj.instance_id, ObjectPose((*park[i % len(park)], -1000.0), 0.0))
     for i, (label, obj, pose) in enumerate(subjects):
         ground = float(world.height_at(sx, sy))
@@ -162,7 +163,7 @@ def _closeup_tiles(world: World, renderer: Renderer) -> tuple[list[list[U8]], li
         renderer.set_object_pose(obj.instance_id, ObjectPose((sx, sy, ground), yaw))
         target = np.array([sx, sy, ground + 0.4 * height])
         row = []
-        for rng_m in _RANGES_M:
+        for rng_m, crop_px in _RANGES_M.items():
             az = math.radians(200.0)  # camera south-south-west of the subject, sun from the south
             el = math.radians(45.0)
             eye = target + rng_m * np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
@@ -172,12 +173,12 @@ def _closeup_tiles(world: World, renderer: Renderer) -> tuple[list[list[U8]], li
             color = effects.apply(frame.color_rgb, frame.depth_m, 0.0).color_rgb if effects else frame.color_rgb
             uv, _ = cam.project(pose_cam.inverse().apply(target[None]))
             cu, cv = round(float(uv[0, 0])), round(float(uv[0, 1]))
-            half = _CROP // 2
+            half = crop_px // 2
             cu = min(max(cu, half), cam.width - half)
             cv = min(max(cv, half), cam.height - half)
             crop = color[cv - half : cv + half, cu - half : cu + half]
             pixels = int(np.count_nonzero(frame.instance_id == obj.instance_id))
-            tile = _resize(np.ascontiguousarray(crop), _CROP * _ZOOM, _CROP * _ZOOM, nearest=True)
+            tile = _resize(np.ascontiguousarray(crop), _TILE, _TILE, nearest=True)
             row.append(_label(tile, [f"{label}", f"{rng_m:.0f} m: {pixels} px"]))
         renderer.set_object_pose(obj.instance_id, ObjectPose((*park[i % len(park)], -1000.0), 0.0))
         rows.append(row)
@@ -226,15 +227,12 @@ def contact_sheet(world: World, out: Path, presets: list[str] | None = None) -> 
         canvas[:, : img.shape[1]] = img
         return canvas
 
-    sheet = np.concatenate(
-        [
-            pad(_banner(f"world {world.config.name} (seed {world.config.seed}): one view under each environment preset", width)),
-            pad(top),
-            pad(_banner("what the 640x480 90 deg camera sees of each pose and vehicle at 30, 60 and 100 m (clear_noon)", width)),
-            pad(bottom),
-        ]
+    title = f"world {world.config.name} (seed {world.config.seed}): one view under each environment preset"
+    closeups = (
+        "what the 640x480, 90 deg camera sees of each pose and vehicle at 12 (detail), 30, 60 and 100 m "
+        "(clear_noon, its camera effects; camera pixels enlarged)"
     )
+    sheet = np.concatenate([pad(_banner(title, width)), pad(top), pad(_banner(closeups, width)), pad(bottom)])
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(sheet).save(out)
     return out
-

@@ -373,8 +373,7 @@ class Renderer:
         if instance_id not in self._dyn_slices:
             msg = f"instance {instance_id} is not a movable object (person or vehicle) of this world"
             raise KeyError(msg)
-        sel = self._dyn_slices[instance_id]
-        a, b = self._dyn_span[instance_id]  # sel is the run a..b
+        a, b = self._dyn_span[instance_id]  # the object's vertices are this run of the buffer
         rot = pose.rotation()
         self._dyn_world[a:b] = self._dyn_local[a:b] @ rot.T + np.asarray(pose.position_m)
         self._dyn_normals[a:b] = self._dyn_normals_local[a:b] @ rot.T
