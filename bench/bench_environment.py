@@ -97,7 +97,6 @@ def main(argv: list[str] | None = None) -> int:
         init_s = time.perf_counter() - t0
         per_pair: dict[str, list[float]] = {k: [] for k in engines}
         cpu: dict[str, float] = dict.fromkeys(engines, 0.0)
-        shadow_frames = 0
         frames = 0
         # warm-up: shaders, framebuffers, the static shadow map
         t0 = time.perf_counter()
@@ -115,7 +114,6 @@ def main(argv: list[str] | None = None) -> int:
                     per_pair[name].append(time.perf_counter() - t0)
                     cpu[name] += time.process_time() - c0
                     if name == "stress":
-                        shadow_frames += int(renderers["stress"].last_object_shadows)
                         frames += 1
                     del out
         clean_hz = 1.0 / median(per_pair["clean"])
@@ -128,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
             f"({1000 * cpu['clean'] / n:.0f} ms CPU per pair), stress {stress_hz:.1f} Hz "
             f"({1000 * cpu['stress'] / n:.0f} ms CPU per pair); stress = stress_all environment (sun at "
             f"{engines['stress'].lighting.elevation_deg:.0f} deg, shadows, every camera effect, depth noise) + "
-            f"{movers} moving people and vehicles; the people/vehicle shadow map was drawn for "
-            f"{shadow_frames} of {frames} stress frames (only when one is near where the camera looks); engine "
+            f"{movers} moving people and vehicles (drawn into the shadow map "
+            f"{renderers['stress'].object_shadow_stamps} times for {frames} frame pairs: once per move); engine "
             f"start-up {init_s:.2f} s, first frames (shaders, static shadow map) {warm_s:.2f} s; loadavg {_load()}"
         )
         record(

@@ -454,8 +454,9 @@ def test_people_cast_shadows_too(flat_people: tuple[World, Renderer]) -> None:
         renderer.set_lighting(
             lighting_for(EnvironmentConfig(sun_azimuth_deg=90.0, sun_elevation_deg=30.0, shadows=True), 47.4)
         )
+        stamps = renderer.object_shadow_stamps
         frame = renderer.render(cam, pose)
-        assert renderer.last_object_shadows
+        assert renderer.object_shadow_stamps == stamps + 1  # the person was drawn into the shadow map
         west = np.array([[-30.0 - d, 40.0 + o] for d in (0.8, 1.4, 2.0) for o in (-0.1, 0.0, 0.1)])
         east = west * [[-1, 1]] + [[-60.0, 0.0]]
         assert _terrain_brightness(frame, cam, pose, world, west) < 0.75 * _terrain_brightness(

@@ -149,12 +149,15 @@ class Renderer:
         self._queries: list[Any] = []  # occlusion queries of unoccluded_pixel_counts, reused
         self._shadow_static: Any = None  # (texture, framebuffer) of the static shadow map, made on demand
         self._shadow_static_key: tuple[float, ...] | None = None  # the sun it was rendered for
-        self._shadow_dyn: Any = None
+        self._static_depth = np.zeros((1, 1), np.float32)  # host copy of the static shadow map
+        self._stamps: dict[int, tuple[int, int, int, int]] = {}  # texel rectangles the movers were drawn into
+        self._stamps_dirty = True
+        self._shadow_texel = (1.0, 1.0)
+        self.object_shadow_stamps = 0  # how often people and vehicles were drawn into the shadow map
         self._dyn_dirty = False
         self._light0 = np.eye(4)
         self._light_depth = (0.0, 1.0)
         self.static_shadow_renders = 0  # how often the static shadow map was rendered (once per sun)
-        self.last_object_shadows = False  # whether the last frame drew the people/vehicle shadow map
         self._build_programs()
         self._upload_static()
         self._upload_dynamic()
@@ -165,7 +168,7 @@ class Renderer:
     def _build_programs(self) -> None:
         ctx = self.ctx
         s = self.settings
-        # One shaded program per (landing pad, shadow mode): 0 no shadows, 1 static, 2 static + people/vehicles.
+        # One shaded program per (landing pad, shadow mode): 0 no shadows, 1 shadows.
         self._progs: dict[tuple[bool, int], Any] = {}
         for pad in (False, True):
             for mode in (0, 1, 2):
@@ -179,9 +182,8 @@ class Renderer:
                 if pad:
                     prog["u_pad_half_m"].value = s.pad_half_size_m
                     prog["u_pad_instance"].value = TERRAIN_INSTANCE_ID
-                for name, unit in (("u_shadow0", 0), ("u_shadow1", 1)):
-                    if prog.get(name, None) is not None:
-                        prog[name].value = unit
+                if prog.get("u_shadow0", None) is not None:
+                    prog["u_shadow0"].value = 0
                 self._progs[(pad, mode)] = prog
         self.prog: Any = self._progs[(False, 0)]
         self.prog_pad: Any = self._progs[(True, 0)]
@@ -380,6 +382,7 @@ class Renderer:
         self._poses[instance_id] = pose
         self._dyn_changed.add(instance_id)
         self._dyn_dirty = True
+        self._stamps_dirty = True
 
     def set_object_shape(self, instance_id: int, local_vertices_m: npt.ArrayLike) -> None:
         """Re-shape a person (a new pose or gait phase): its triangle-soup vertices in its local frame, in the order
@@ -494,9 +497,6 @@ class Renderer:
                 if mode:
                     _set(prog, "u_light0", self._light0.T.astype("f4").tobytes())
                     _set(prog, "u_offset0_m", self._offset0_m)
-                if mode == 2:
-                    _set(prog, "u_light1", self._light1.T.astype("f4").tobytes())
-                    _set(prog, "u_offset1_m", self._offset1_m)
         else:
             self.iprog["u_mvp"].write(mvp)
         fbo = target.fbo if shaded else target.fbo_inst
@@ -564,8 +564,6 @@ class Renderer:
     # ------------------------------------------------------------------ shadows
     _shadow_mode = 0
     _offset0_m = 0.0
-    _offset1_m = 0.0
-    _light1 = np.eye(4)
 
     def _light_basis(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         w = np.asarray(self.lighting.sun_dir, dtype=np.float64)
@@ -607,9 +605,12 @@ class Renderer:
         tex.repeat_y = False
         return tex, self.ctx.framebuffer(depth_attachment=tex)
 
-    def _draw_depth(self, fbo: Any, light: npt.NDArray[np.float64], vao: Any, vertices: int | None = None) -> None:
+    def _draw_depth(
+        self, fbo: Any, light: npt.NDArray[np.float64], vao: Any, vertices: int | None = None, *, clear: bool
+    ) -> None:
         fbo.use()
-        fbo.clear(depth=1.0)
+        if clear:
+            fbo.clear(depth=1.0)
         self.ctx.enable(self._mgl.DEPTH_TEST)
         self.ctx.disable(self._mgl.CULL_FACE)
         self.ctx.depth_func = "<"
@@ -622,7 +623,11 @@ class Renderer:
         self.ctx.polygon_offset = (0.0, 0.0)
 
     def _render_static_shadows(self) -> None:
-        """The static world seen from the sun, once per sun position: terrain, roads, buildings, trees."""
+        """The static world seen from the sun, once per sun position: terrain, roads, buildings, trees.
+
+        A copy stays in memory: the people and vehicles are drawn into the same map where they stand
+        (:meth:`_stamp_object_shadows`), and the static depth is written back where they stood.
+        """
         u, v, w = self._light_basis()
         lo, hi = self._world_box
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -634,57 +639,54 @@ class Renderer:
         size = self.settings.shadow_map_px
         if self._shadow_static is None:
             self._shadow_static = self._shadow_target(size)
-        _, fbo = self._shadow_static
-        texel = 2.0 * max(hu, hv) / size
-        self._offset0_m = 1.0 * texel
-        self._draw_depth(fbo, self._light0, self._shadow_vao, self._shadow_caster_count)
+        tex, fbo = self._shadow_static
+        self._shadow_texel = (2.0 * hu / size, 2.0 * hv / size)
+        self._offset0_m = 1.0 * max(self._shadow_texel)
+        self._draw_depth(fbo, self._light0, self._shadow_vao, self._shadow_caster_count, clear=True)
+        self._static_depth = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size).copy()
+        self._stamps = {}
+        self._stamps_dirty = True
         self._shadow_static_key = tuple(self.lighting.sun_dir)
         self.static_shadow_renders += 1
 
-    def _prepare_shadows(self, camera: CameraModel, t_map_optical: RigidTransform) -> None:
-        """Pick the shadow mode of this frame and render what it needs before the camera pass."""
+    def _stamp_object_shadows(self) -> None:
+        """Put the people and vehicles into the shadow map where they are now (once per move, for every camera):
+        the static depth is written back where each stood, then all of them are drawn over the static world."""
+        if not self.dynamic_triangles:
+            return
+        tex, fbo = self._shadow_static
+        size = self.settings.shadow_map_px
+        for x0, y0, x1, y1 in self._stamps.values():
+            tex.write(
+                np.ascontiguousarray(self._static_depth[y0:y1, x0:x1]).tobytes(), viewport=(x0, y0, x1 - x0, y1 - y0)
+            )
+        self._upload_dynamic_changes()
+        self._draw_depth(fbo, self._light0, self._dyn_shadow_vao, clear=False)
+        stamps = {}
+        for iid, pose in self._poses.items():
+            c = self._light0 @ np.array([*pose.position_m, 1.0])
+            r = self._dyn_radius.get(iid, 0.0)
+            rx, ry = r / self._shadow_texel[0] + 2.0, r / self._shadow_texel[1] + 2.0
+            x0, x1 = int(max(0, math.floor(c[0] * size - rx))), int(min(size, math.ceil(c[0] * size + rx)))
+            y0, y1 = int(max(0, math.floor(c[1] * size - ry))), int(min(size, math.ceil(c[1] * size + ry)))
+            if x1 > x0 and y1 > y0:
+                stamps[iid] = (x0, y0, x1, y1)
+        self._stamps = stamps
+        self._stamps_dirty = False
+        self.object_shadow_stamps += 1
+
+    def _prepare_shadows(self, camera: CameraModel, t_map_optical: RigidTransform) -> None:  # noqa: ARG002
+        """Pick the shadow mode of this frame and bring the shadow map up to date before the camera pass."""
         self._shadow_mode = 0
-        self.last_object_shadows = False
         if not self.lighting.shadows:
             return
         if self._shadow_static_key != tuple(self.lighting.sun_dir):
             self._render_static_shadows()
+        if self._stamps_dirty:
+            self._stamp_object_shadows()
         self._shadow_mode = 1
         tex0, _ = self._shadow_static
         tex0.use(location=0)
-        if not self.dynamic_triangles:
-            return
-        # People and vehicles: a small map around where the camera looks, if any of them is there.
-        u, v, w = self._light_basis()
-        eye = t_map_optical.translation_m
-        axis = t_map_optical.rotation[:, 2]
-        ground = float(self.world.height_at(eye[0], eye[1]))
-        radius = self.settings.object_shadow_radius_m
-        reach = radius if axis[2] > -0.05 else min(radius, (eye[2] - ground) / -axis[2])
-        centre = eye + axis * reach if axis[2] < -0.05 else eye
-        cu, cv = float(centre @ u), float(centre @ v)
-        el = max(math.asin(min(1.0, max(0.05, float(w[2])))), 0.05)
-        hu, hv = radius, radius * math.sin(el) + 40.0 * math.cos(el)
-        near = False
-        for iid, pose in self._poses.items():
-            p = np.asarray(pose.position_m)
-            r = self._dyn_radius.get(iid, 0.0)
-            if abs(float(p @ u) - cu) < hu + r and abs(float(p @ v) - cv) < hv + r:
-                near = True
-                break
-        if not near:
-            return
-        self._light1 = self._ortho((u, v, w), (cu, cv), (hu, hv), self._light_depth)
-        size = self.settings.object_shadow_px
-        if self._shadow_dyn is None:
-            self._shadow_dyn = self._shadow_target(size)
-        tex1, fbo1 = self._shadow_dyn
-        self._upload_dynamic_changes()
-        self._draw_depth(fbo1, self._light1, self._dyn_shadow_vao)
-        self._offset1_m = 1.0 * 2.0 * max(hu, hv) / size
-        tex1.use(location=1)
-        self._shadow_mode = 2
-        self.last_object_shadows = True
 
     def render_instances(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint16]:
         """Only the instance-id image of :meth:`render` (0 where nothing was hit), unshaded.
@@ -748,8 +750,7 @@ class Renderer:
             for t in self._targets.values():
                 t.release()
             self._targets.clear()
-            for pair in (self._shadow_static, self._shadow_dyn):
-                if pair is not None:
-                    pair[1].release()
-                    pair[0].release()
+            if self._shadow_static is not None:
+                self._shadow_static[1].release()
+                self._shadow_static[0].release()
         self.ctx.release()

@@ -8,10 +8,11 @@ octaves, faded out where a texel gets smaller than a pixel), lit by a sun, a sky
 ambient term (colours from :class:`~uav_sim_bridge.core.lighting.Lighting`), faded into
 haze or fog with distance.  Around home the terrain gets a concrete landing pad with an "H".
 
-Shadows (``#define SHADOWS``): the sun term is multiplied by a lookup in a depth map of the
-static world seen from the sun (rendered once per sun position, :data:`DEPTH_VS`), and with
-``DYN_SHADOWS`` also in a small map of the people and vehicles around the camera (rendered
-per frame). Both lookups are hardware-filtered (2x2 percentage closer).
+Shadows (``#define SHADOWS``): the sun term is multiplied by one lookup in a depth map of the
+world seen from the sun (:data:`DEPTH_VS`): the static world is rendered into it once per sun
+position, and the people and vehicles are drawn into it where they stand whenever they move.
+The lookup is hardware-filtered (2x2 percentage closer). On llvmpipe every texture lookup costs
+(~15-25 % of a frame each), so there is exactly one.
 
 Speed (Mesa llvmpipe runs every fragment shader on the CPU, and a branch costs both of its
 sides): the haze is computed per vertex (it changes by < 1e-4 across a triangle), and the
@@ -29,14 +30,9 @@ uniform vec3 u_eye;
 uniform float u_haze_per_m;
 uniform float u_haze_max;
 #ifdef SHADOWS
-uniform mat4 u_light0;       // map -> static shadow map [0, 1]^3
+uniform mat4 u_light0;       // map -> shadow map [0, 1]^3
 uniform float u_offset0_m;   // receiver offset along its normal (against self-shadowing)
 out vec3 v_ls0;
-#ifdef DYN_SHADOWS
-uniform mat4 u_light1;       // map -> people/vehicles shadow map around the camera
-uniform float u_offset1_m;
-out vec3 v_ls1;
-#endif
 #endif
 in vec3 in_pos;
 in vec3 in_nrm;
@@ -59,9 +55,6 @@ void main() {
     // orthographic light projections are affine: interpolating them per vertex is exact (and on llvmpipe
     // cheaper than a matrix per pixel)
     v_ls0 = (u_light0 * vec4(in_pos + in_nrm * u_offset0_m, 1.0)).xyz;
-#ifdef DYN_SHADOWS
-    v_ls1 = (u_light1 * vec4(in_pos + in_nrm * u_offset1_m, 1.0)).xyz;
-#endif
 #endif
     gl_Position = u_mvp * vec4(in_pos, 1.0);
 }
@@ -81,10 +74,6 @@ uniform vec3 u_haze_color;
 #ifdef SHADOWS
 uniform sampler2DShadow u_shadow0;
 in vec3 v_ls0;
-#ifdef DYN_SHADOWS
-uniform sampler2DShadow u_shadow1;
-in vec3 v_ls1;
-#endif
 #endif
 in vec3 v_pos;
 in vec3 v_nrm;
@@ -142,11 +131,7 @@ void main() {
     float sun = max(dot(n, u_sun), 0.0);
 #ifdef SHADOWS
     // hardware 2x2 percentage-closer filtering; a reference outside the map's depth range is lit
-    float lit = texture(u_shadow0, vec3(v_ls0.xy, clamp(v_ls0.z, 0.0, 1.0)));
-#ifdef DYN_SHADOWS
-    lit = min(lit, texture(u_shadow1, vec3(v_ls1.xy, clamp(v_ls1.z, 0.0, 1.0))));
-#endif
-    sun *= lit;
+    sun *= texture(u_shadow0, vec3(v_ls0.xy, clamp(v_ls0.z, 0.0, 1.0)));
 #endif
     float sky = 0.5 + 0.5 * n.z;
     vec3 lit_rgb = base * tex * (u_sun_rgb * sun + u_sky_rgb * sky + u_ambient_rgb);
