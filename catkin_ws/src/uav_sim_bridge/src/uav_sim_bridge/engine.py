@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +37,7 @@ from uav_common.geo import GeoPoint, LocalProjection
 from uav_sim_bridge.config import SimBridgeConfig
 from uav_sim_bridge.core import figures
 from uav_sim_bridge.core.camera import CameraModel
-from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, camera_rng
+from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, EffectsResult, camera_rng
 from uav_sim_bridge.core.collision import CollisionChecker, Contact
 from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections, visible_candidates
 from uav_sim_bridge.core.figures import PersonPose
@@ -53,6 +54,8 @@ from uav_sim_bridge.render import RenderedFrame, Renderer
 
 __all__ = ["BridgeEngine", "CameraOutput", "ObjectState", "StepOutput", "TerrainReport"]
 
+#: Phases of the walking cycle precomputed per walker.
+_GAIT_STEPS = 30
 # Surfaces up to this far above base_link still count as "under" the vehicle (its gear hangs below it).
 _GROUND_TOLERANCE_M = 0.5
 
@@ -135,6 +138,7 @@ class BridgeEngine:
                     fx_cfg, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, camera_rng(env.seed, name)
                 )
         self._depth_rng = camera_rng(env.seed, "depth_noise")
+        self._pool: ThreadPoolExecutor | None = None
         self._delayed: list[CameraOutput] = []
         # Moving people and vehicles.
         self.motion: MotionPlan = plan_motion(
@@ -150,6 +154,7 @@ class BridgeEngine:
             self._reshape_person(self._objects[iid], pose)
         for m in self._walkers:
             self._reshape_person(m.obj, PersonPose.WALKING)
+        self._gaits = self._gait_cycles([m.obj for m in self._walkers])
         boxes = [
             (m.path.points_m.min(axis=0), m.path.points_m.max(axis=0), 0.5 * float(np.linalg.norm(m.obj.size_m)))
             for m in self.motion.movers
@@ -179,6 +184,33 @@ class BridgeEngine:
         faces, _ = figures.person_faces()
         return np.asarray(verts[0][faces].reshape(-1, 3), dtype=np.float64)
 
+    def _gait_cycles(
+        self, people: list[WorldObject]
+    ) -> dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
+        """Each walker's mesh at :data:`_GAIT_STEPS` phases of its stride (vertices, flat normals), computed once:
+        a frame picks the nearest phase (a 30th of a stride is ~5 cm of walking)."""
+        if not people:
+            return {}
+        faces, _ = figures.person_faces()
+        walking = int(PersonPose.WALKING)
+        shapes = np.array([o.shape if len(o.shape) == 2 else (1.75, 1.0) for o in people])
+        phases = np.arange(_GAIT_STEPS) / _GAIT_STEPS
+        out = {}
+        for o, (height, build) in zip(people, shapes, strict=True):
+            centre = self._centre[(o.instance_id, walking)]
+            v = figures.person_vertices(
+                np.full(_GAIT_STEPS, height), np.full(_GAIT_STEPS, build), np.full(_GAIT_STEPS, walking), phases,
+                centre_xy=np.tile(centre, (_GAIT_STEPS, 1)),
+            )  # fmt: skip
+            soup = v[:, faces]  # (steps, F, 3, 3)
+            n = np.cross(soup[:, :, 1] - soup[:, :, 0], soup[:, :, 2] - soup[:, :, 0])
+            n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
+            out[o.instance_id] = (
+                soup.reshape(_GAIT_STEPS, -1, 3).astype(np.float32),
+                np.repeat(n, 3, axis=1).astype(np.float32),
+            )
+        return out
+
     def _reshape_person(self, obj: WorldObject, pose: PersonPose) -> None:
         """Give a person another pose: its mesh (renderer and collisions), kind and box."""
         height, build = obj.shape if len(obj.shape) == 2 else (1.75, 1.0)
@@ -199,21 +231,13 @@ class BridgeEngine:
             return
         self._synced_t = t_s
         states = [st for st in self.motion.states_at(t_s, self.world.terrain) if st.instance_id not in self._moved_ids]
-        walkers = [st for st in states if self._objects[st.instance_id].object_class is ObjectClass.PERSON]
+        walkers = [st for st in states if st.instance_id in self._gaits]
         if walkers:  # the gait: new limb positions first (one batch), then every mover's pose
-            objs = [self._objects[st.instance_id] for st in walkers]
-            shapes = np.array([o.shape if len(o.shape) == 2 else (1.75, 1.0) for o in objs])
-            walking = int(PersonPose.WALKING)
-            centres = np.array([self._centre[(o.instance_id, walking)] for o in objs])
-            verts = figures.person_vertices(
-                shapes[:, 0],
-                shapes[:, 1],
-                np.full(len(objs), walking),
-                [st.gait_phase for st in walkers],
-                centre_xy=centres,
-            )
-            faces, _ = figures.person_faces()
-            self.renderer.set_object_shapes([o.instance_id for o in objs], verts[:, faces].reshape(len(objs), -1, 3))
+            ids = [st.instance_id for st in walkers]
+            k = [round(st.gait_phase * _GAIT_STEPS) % _GAIT_STEPS for st in walkers]
+            verts = np.stack([self._gaits[i][0][j] for i, j in zip(ids, k, strict=True)])
+            normals = np.stack([self._gaits[i][1][j] for i, j in zip(ids, k, strict=True)])
+            self.renderer.set_object_shapes(ids, verts, normals)
         for st in states:
             iid = st.instance_id
             self._moving[iid] = st
@@ -313,10 +337,21 @@ class BridgeEngine:
         due = [name for name in due if wanted(name) or name in det_cams]
         if due:
             self.sync_movers(t)
+        pending: list[tuple[CameraOutput, Future[EffectsResult] | None]] = []
         for name in due:
-            out = self._camera(name, state, full=wanted(name), detect=name in det_cams)
+            # a camera's effects run in the effects thread while the next camera renders (GL stays in this thread)
+            out, job = self._camera(name, state, full=wanted(name), detect=name in det_cams)
             if out is not None:
+                pending.append((out, job))
+        for out, job in pending:
+            if job is None:
                 outputs.append(out)
+                continue
+            result = job.result()
+            frame = out.frame
+            assert frame is not None
+            effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
+            outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
         outputs = self._deliver(outputs, t)
         if self._movers_near(state.position_m, cfg.collision.vehicle_radius_m + 2.0) or (
             self._previous_position is not None and self._movers_near(self._previous_position, 2.0)
@@ -333,15 +368,18 @@ class BridgeEngine:
             objects = self.object_states()
         return StepOutput(state, published, outputs, new, self.terrain_report(state, home), objects)
 
-    def _camera(self, name: str, state: VehicleState, *, full: bool, detect: bool) -> CameraOutput | None:
-        """Render camera ``name`` for this state (all images, or only the ids its detections need)."""
+    def _camera(
+        self, name: str, state: VehicleState, *, full: bool, detect: bool
+    ) -> tuple[CameraOutput | None, Future[EffectsResult] | None]:
+        """Render camera ``name`` for this state (all images, or only the ids its detections need); its camera
+        effects, if any, are submitted to the effects thread (the returned future)."""
         cfg = self.cfg
         t = state.sim_time_s
         cam = self.cameras[name]
         t_opt = cam.optical_pose(state.t_map_base)
         frame: RenderedFrame | None = None
         depth: npt.NDArray[np.float32] | None = None
-        exposure_s, gain = 0.0, 1.0
+        job: Future[EffectsResult] | None = None
         dropped = False
         if full:
             det_cam = cam
@@ -354,15 +392,14 @@ class BridgeEngine:
                 depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng)
             elif cfg.environment.depth_noise is not None:
                 depth = degrade_depth(frame.depth_m, cfg.environment.depth_noise, self._depth_rng)
-            if effects is not None:
-                result = effects.apply(frame.color_rgb, frame.depth_m, t, self._camera_motion(cam, state))
-                exposure_s, gain = result.exposure_s, result.gain
-                if result.color_rgb is not frame.color_rgb:
-                    frame = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
+            if effects is not None and not dropped:
+                job = self._effects_pool().submit(
+                    effects.apply, frame.color_rgb, frame.depth_m, t, self._camera_motion(cam, state)
+                )
         else:
             det_cam = self._detection_cameras[name]
             if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
-                return CameraOutput(cam, t_opt, None, None, [], t)
+                return CameraOutput(cam, t_opt, None, None, [], t), None
             instance_id = self.renderer.render_instances(det_cam, t_opt)
         dets = None
         if detect:
@@ -375,8 +412,20 @@ class BridgeEngine:
         if dropped:  # the camera lost the frame: only the (ground-truth) detections remain
             frame, depth = None, None
             if dets is None:
-                return None
-        return CameraOutput(cam, t_opt, frame, depth, dets, t, exposure_s, gain)
+                return None, None
+        return CameraOutput(cam, t_opt, frame, depth, dets, t), job
+
+    def _effects_pool(self) -> ThreadPoolExecutor:
+        """One worker: each camera's effects run in submission order (deterministic), beside the GL thread."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-effects")
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the effects thread (the renderer is the caller's)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
     def _deliver(self, outputs: list[CameraOutput], t_s: float) -> list[CameraOutput]:
         """Hold back delayed camera images until their capture time plus the camera's latency."""

@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float32]
-_BANK_PAD = 128
+_BANK_PAD = 64  # rows of normals beyond one frame in the noise bank
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
 
@@ -267,9 +267,9 @@ class CameraEffects:
             v = 1.0 - (1.0 - fall) * (self.cfg.vignetting / max(1.0 - corner, 1e-6))
             self._vignette = np.ascontiguousarray(np.repeat(v[:, :, None], 3, axis=2), dtype=np.float32)
         if self.cfg.noise is not None:
-            self._bank = self.rng.standard_normal(
-                (self.height + _BANK_PAD, self.width + _BANK_PAD, 3), dtype=np.float32
-            )
+            # one long run of normals; each frame takes a window of it at a random offset (contiguous: no copy)
+            n = self.height * self.width * 3
+            self._bank = self.rng.standard_normal(n + _BANK_PAD * self.width * 3, dtype=np.float32)
 
     # ---------------------------------------------------------------------------------------- per frame
     def drop(self) -> bool:
@@ -369,6 +369,10 @@ class CameraEffects:
         streak = float(np.sqrt(np.max(du * du + dv * dv)))
         if streak < 0.5:  # less than half a pixel anywhere: invisible
             return img, streak
+        mu, mv = float(du.mean()), float(dv.mean())
+        if float(np.max(np.hypot(du - mu, dv - mv))) < 0.35:
+            # the whole frame moves alike (flat ground, no rotation about the axis): one line kernel is exact
+            return _line_blur(img, mu, mv), streak
         h, w = img.shape[:2]
         du = np.asarray(cv2.resize(du, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32)
         dv = np.asarray(cv2.resize(dv, (w, h), interpolation=cv2.INTER_LINEAR), dtype=np.float32)
@@ -388,9 +392,9 @@ class CameraEffects:
         self, img: npt.NDArray[np.uint8], n: SensorNoiseConfig, scale: float, exposure_s: float, gain: float
     ) -> npt.NDArray[np.uint8]:
         assert self._bank is not None
-        oy = int(self.rng.integers(_BANK_PAD))
-        ox = int(self.rng.integers(_BANK_PAD))
-        normals = self._bank[oy : oy + self.height, ox : ox + self.width]
+        size = self.height * self.width * 3
+        start = int(self.rng.integers(len(self._bank) - size + 1))
+        normals = self._bank[start : start + size].reshape(self.height, self.width, 3)
         signal = (
             cv2.multiply(img, self._vignette, scale=scale, dtype=cv2.CV_32F)
             if self._vignette is not None
@@ -412,6 +416,26 @@ def _jpeg(rgb: npt.NDArray[np.uint8], quality: int) -> npt.NDArray[np.uint8]:
         msg = "JPEG encoding failed"
         raise RuntimeError(msg)
     return _u8(cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB))
+
+
+def _line_blur(img: npt.NDArray[np.uint8], du: float, dv: float) -> npt.NDArray[np.uint8]:
+    """The image averaged along a straight streak ``(du, dv)`` pixels long, centred on each pixel."""
+    length = math.hypot(du, dv)
+    size = 2 * math.ceil(length / 2.0) + 1
+    kernel = np.zeros((size, size), np.float32)
+    c = size // 2
+    n = max(2, math.ceil(length * 4))
+    for k in range(n):  # a line drawn with sub-pixel weights (bilinear splats)
+        t = k / (n - 1) - 0.5
+        x, y = c + t * du, c + t * dv
+        x0, y0 = math.floor(x), math.floor(y)
+        fx, fy = x - x0, y - y0
+        for xx, yy, wgt in ((x0, y0, (1 - fx) * (1 - fy)), (x0 + 1, y0, fx * (1 - fy)), (x0, y0 + 1, (1 - fx) * fy),
+                            (x0 + 1, y0 + 1, fx * fy)):  # fmt: skip
+            if 0 <= xx < size and 0 <= yy < size:
+                kernel[yy, xx] += wgt
+    kernel /= kernel.sum()
+    return _u8(cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REFLECT))
 
 
 def _u8(img: object) -> npt.NDArray[np.uint8]:

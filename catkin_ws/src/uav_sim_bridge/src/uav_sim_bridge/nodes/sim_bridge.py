@@ -654,6 +654,7 @@ class SimBridgeNode:
 
     def close(self) -> None:
         self.link.close()
+        self.engine.close()
         self.renderer.close()
 
 

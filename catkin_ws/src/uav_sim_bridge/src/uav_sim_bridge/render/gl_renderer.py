@@ -102,7 +102,8 @@ class _Target:
 
     def __init__(self, ctx: Any, width: int, height: int) -> None:
         self.color = ctx.renderbuffer((width, height), 4, dtype="f1")
-        self.depth = ctx.renderbuffer((width, height), 1, dtype="f4")
+        self.depth = ctx.texture((width, height), 1, dtype="f4")  # a texture: the shadow pass reads it
+        self.depth.filter = (0x2600, 0x2600)  # GL_NEAREST
         self.inst = ctx.renderbuffer((width, height), 1, dtype="u4")
         self.zbuf = ctx.depth_renderbuffer((width, height))
         self.fbo = ctx.framebuffer([self.color, self.depth, self.inst], self.zbuf)
@@ -110,10 +111,25 @@ class _Target:
         self.buf_color = np.empty((height, width, 3), np.uint8)
         self.buf_depth = np.empty((height, width), np.float32)
         self.buf_inst = np.empty((height, width), np.uint32)
+        self.buf_alpha = np.empty((height, width, 4), np.uint8)
+
+    def shadow_buffers(self, ctx: Any, step: int) -> None:
+        """The lit-fraction buffer of the shadow pass: one pixel per ``step`` x ``step`` block."""
+        if getattr(self, "shadow_step", None) == step:
+            return
+        width, height = self.buf_color.shape[1], self.buf_color.shape[0]
+        hw, hh = (width + step - 1) // step, (height + step - 1) // step
+        self.shadow_step = step
+        self.lit = ctx.renderbuffer((hw, hh), 1, dtype="f1")
+        self.fbo_lit = ctx.framebuffer([self.lit])
+        self.buf_lit = np.empty((hh, hw), np.uint8)
 
     def release(self) -> None:
         for obj in (self.fbo, self.fbo_inst, self.color, self.depth, self.inst, self.zbuf):
             obj.release()
+        if getattr(self, "shadow_step", None) is not None:
+            self.fbo_lit.release()
+            self.lit.release()
 
 
 class Renderer:
@@ -153,6 +169,7 @@ class Renderer:
         self._stamps: dict[int, tuple[int, int, int, int]] = {}  # texel rectangles the movers were drawn into
         self._stamps_dirty = True
         self._shadow_texel = (1.0, 1.0)
+        self._shadow_bias = 0.0
         self.object_shadow_stamps = 0  # how often people and vehicles were drawn into the shadow map
         self._dyn_dirty = False
         self._light0 = np.eye(4)
@@ -192,6 +209,10 @@ class Renderer:
         self.sky_vao = ctx.vertex_array(self.sky, [(tri, "2f", "in_xy")])
         self.iprog: Any = ctx.program(vertex_shader=shaders.INSTANCE_VS, fragment_shader=shaders.INSTANCE_FS)
         self.dprog: Any = ctx.program(vertex_shader=shaders.DEPTH_VS, fragment_shader=shaders.DEPTH_FS)
+        self.sprog: Any = ctx.program(vertex_shader=shaders.SHADOW_VS, fragment_shader=shaders.SHADOW_FS)
+        self.sprog["u_shadow"].value = 0
+        self.sprog["u_depth"].value = 1
+        self.shadow_vao = ctx.vertex_array(self.sprog, [(tri, "2f", "in_xy")])
 
     # ------------------------------------------------------------------ light
     def set_lighting(self, lighting: Lighting) -> None:
@@ -403,7 +424,9 @@ class Renderer:
         self.set_object_shapes([instance_id], local[None])
         self.set_object_pose(instance_id, self._poses[instance_id])
 
-    def set_object_shapes(self, instance_ids: list[int], local_vertices_m: npt.ArrayLike) -> None:
+    def set_object_shapes(
+        self, instance_ids: list[int], local_vertices_m: npt.ArrayLike, normals: npt.ArrayLike | None = None
+    ) -> None:
         """:meth:`set_object_shape` of several people with the same vertex count (``(K, V, 3)``), without
         re-posing them: call :meth:`set_object_pose` for each afterwards (walkers move every frame anyway).
 
@@ -411,14 +434,16 @@ class Renderer:
             KeyError: an instance is not a person or vehicle of this world.
             ValueError: a vertex count differs from the object's.
         """
-        local = np.asarray(local_vertices_m, dtype=np.float64)
+        local = np.asarray(local_vertices_m)
         if not len(instance_ids):
             return
-        tri = local.reshape(len(instance_ids), -1, 3, 3)
-        nrm = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-        nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True) + 1e-12
-        normals = np.repeat(nrm, 3, axis=1)
-        radius = np.max(np.linalg.norm(local, axis=-1), axis=1)
+        if normals is None:  # flat shading: each triangle's own normal on its three vertices
+            tri = local.reshape(len(instance_ids), -1, 3, 3)
+            nrm = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+            nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True) + 1e-12
+            normals = np.repeat(nrm, 3, axis=1)
+        normals = np.asarray(normals)
+        radius = np.max(np.abs(local).sum(axis=-1), axis=1)  # >= the largest norm: a safe bound
         for k, iid in enumerate(instance_ids):
             if iid not in self._dyn_span:
                 msg = f"instance {iid} is not a movable object (person or vehicle) of this world"
@@ -494,9 +519,6 @@ class Renderer:
                 prog["u_view"].write(view_bytes)
                 prog["u_eye"].value = eye
                 prog["u_focal_px"].value = float(camera.fx)
-                if mode:
-                    _set(prog, "u_light0", self._light0.T.astype("f4").tobytes())
-                    _set(prog, "u_offset0_m", self._offset0_m)
         else:
             self.iprog["u_mvp"].write(mvp)
         fbo = target.fbo if shaded else target.fbo_inst
@@ -553,17 +575,52 @@ class Renderer:
         if not target.buf_depth.all():
             self.sky_vao.render(self._mgl.TRIANGLES)
             fbo.read_into(target.buf_depth, attachment=1, components=1, dtype="f4", alignment=1)
-        fbo.read_into(target.buf_color, attachment=0, components=3, dtype="f1", alignment=1)
+        if self._shadow_mode:
+            color = self._shadowed_color(camera, t_map_optical, target)
+        else:
+            fbo.read_into(target.buf_color, attachment=0, components=3, dtype="f1", alignment=1)
+            color = target.buf_color
         fbo.read_into(target.buf_inst, attachment=2, components=1, dtype="u4", alignment=1)
         return RenderedFrame(
-            color_rgb=np.ascontiguousarray(target.buf_color[::-1]),
+            color_rgb=np.ascontiguousarray(color[::-1]),
             depth_m=np.ascontiguousarray(target.buf_depth[::-1]),
             instance_id=target.buf_inst[::-1].astype(np.uint16),
         )
 
     # ------------------------------------------------------------------ shadows
     _shadow_mode = 0
-    _offset0_m = 0.0
+
+    def _shadowed_color(self, camera: CameraModel, t_map_optical: RigidTransform, target: _Target) -> Any:
+        """The camera pass's colour with the sun's share taken away where the shadow map says so (bottom-up rows).
+
+        The lit fraction is found at half resolution (one pixel per 2x2 block) and interpolated back.
+        """
+        import cv2  # noqa: PLC0415
+
+        step = self.settings.shadow_step
+        target.shadow_buffers(self.ctx, step)
+        sp = self.sprog
+        sp["u_step"].value = step
+        sp["u_r_map_optical"].write(t_map_optical.rotation.T.astype("f4").tobytes())
+        sp["u_eye"].value = tuple(float(v) for v in t_map_optical.translation_m)
+        sp["u_k"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
+        sp["u_height"].value = float(camera.height)
+        sp["u_light"].write(self._light0.T.astype("f4").tobytes())
+        sp["u_bias"].value = self._shadow_bias
+        target.depth.use(location=1)
+        self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE)
+        target.fbo_lit.use()
+        self.shadow_vao.render(self._mgl.TRIANGLES)
+        target.fbo_lit.read_into(target.buf_lit, components=1, dtype="f1", alignment=1)
+        target.fbo.read_into(target.buf_alpha, attachment=0, components=4, dtype="f1", alignment=1)
+        h, w = camera.height, camera.width
+        # back to full resolution: each block's value at its centre pixel, linear in between
+        lit = cv2.resize(target.buf_lit, (w, h), interpolation=cv2.INTER_LINEAR)
+        # factor = 1 - (1 - lit) * sun_share, in 1/255 units: 255 - (255 - lit) * share / 255
+        share = cv2.extractChannel(target.buf_alpha, 3)
+        factor = cv2.bitwise_not(cv2.multiply(cv2.bitwise_not(lit), share, scale=1.0 / 255.0))
+        factor4 = cv2.cvtColor(factor, cv2.COLOR_GRAY2RGBA)
+        return cv2.multiply(target.buf_alpha, factor4, scale=1.0 / 255.0)[:, :, :3]
 
     def _light_basis(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         w = np.asarray(self.lighting.sun_dir, dtype=np.float64)
@@ -641,7 +698,8 @@ class Renderer:
             self._shadow_static = self._shadow_target(size)
         tex, fbo = self._shadow_static
         self._shadow_texel = (2.0 * hu / size, 2.0 * hv / size)
-        self._offset0_m = 1.0 * max(self._shadow_texel)
+        # a receiver is lit unless something is more than ~1.5 texels (in depth) nearer the sun
+        self._shadow_bias = 1.5 * max(self._shadow_texel) / (self._light_depth[1] - self._light_depth[0])
         self._draw_depth(fbo, self._light0, self._shadow_vao, self._shadow_caster_count, clear=True)
         self._static_depth = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size).copy()
         self._stamps = {}
@@ -675,7 +733,7 @@ class Renderer:
         self._stamps_dirty = False
         self.object_shadow_stamps += 1
 
-    def _prepare_shadows(self, camera: CameraModel, t_map_optical: RigidTransform) -> None:  # noqa: ARG002
+    def _prepare_shadows(self, camera: CameraModel, t_map_optical: RigidTransform) -> None:
         """Pick the shadow mode of this frame and bring the shadow map up to date before the camera pass."""
         self._shadow_mode = 0
         if not self.lighting.shadows:

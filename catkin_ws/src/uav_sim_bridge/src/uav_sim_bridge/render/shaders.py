@@ -8,11 +8,14 @@ octaves, faded out where a texel gets smaller than a pixel), lit by a sun, a sky
 ambient term (colours from :class:`~uav_sim_bridge.core.lighting.Lighting`), faded into
 haze or fog with distance.  Around home the terrain gets a concrete landing pad with an "H".
 
-Shadows (``#define SHADOWS``): the sun term is multiplied by one lookup in a depth map of the
-world seen from the sun (:data:`DEPTH_VS`): the static world is rendered into it once per sun
-position, and the people and vehicles are drawn into it where they stand whenever they move.
-The lookup is hardware-filtered (2x2 percentage closer). On llvmpipe every texture lookup costs
-(~15-25 % of a frame each), so there is exactly one.
+Shadows: the world seen from the sun is a depth map (:data:`DEPTH_VS`): the static world is rendered
+into it once per sun position, and the people and vehicles are drawn into it where they stand
+whenever they move. On llvmpipe every texture lookup in the main pass costs 15-25 % of a frame, so
+the main pass does none: with ``#define SHADOWS`` it writes, in the colour's alpha, the share of
+each pixel's light that comes from the sun. A reduced-resolution pass (:data:`SHADOW_FS`, one pixel
+per ``shadow_step`` x ``shadow_step`` block) then puts each block back into the world from its z-depth
+and looks it up in the shadow map (hardware 2x2 percentage-closer filtering); the renderer
+interpolates that back to full resolution and takes the sun's share away where it is shadowed.
 
 Speed (Mesa llvmpipe runs every fragment shader on the CPU, and a branch costs both of its
 sides): the haze is computed per vertex (it changes by < 1e-4 across a triangle), and the
@@ -29,11 +32,6 @@ uniform mat4 u_view;
 uniform vec3 u_eye;
 uniform float u_haze_per_m;
 uniform float u_haze_max;
-#ifdef SHADOWS
-uniform mat4 u_light0;       // map -> shadow map [0, 1]^3
-uniform float u_offset0_m;   // receiver offset along its normal (against self-shadowing)
-out vec3 v_ls0;
-#endif
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec3 in_col;
@@ -51,11 +49,6 @@ void main() {
     v_inst = in_inst;
     v_z = -(u_view * vec4(in_pos, 1.0)).z;
     v_haze = u_haze_max * (1.0 - exp(-length(in_pos - u_eye) * u_haze_per_m));
-#ifdef SHADOWS
-    // orthographic light projections are affine: interpolating them per vertex is exact (and on llvmpipe
-    // cheaper than a matrix per pixel)
-    v_ls0 = (u_light0 * vec4(in_pos + in_nrm * u_offset0_m, 1.0)).xyz;
-#endif
     gl_Position = u_mvp * vec4(in_pos, 1.0);
 }
 """
@@ -71,10 +64,6 @@ uniform float u_texture_gain;
 uniform float u_pad_half_m;
 uniform uint u_pad_instance;
 uniform vec3 u_haze_color;
-#ifdef SHADOWS
-uniform sampler2DShadow u_shadow0;
-in vec3 v_ls0;
-#endif
 in vec3 v_pos;
 in vec3 v_nrm;
 in vec3 v_col;
@@ -129,13 +118,18 @@ void main() {
     if (v_inst == u_pad_instance) base = pad(base);
 #endif
     float sun = max(dot(n, u_sun), 0.0);
-#ifdef SHADOWS
-    // hardware 2x2 percentage-closer filtering; a reference outside the map's depth range is lit
-    sun *= texture(u_shadow0, vec3(v_ls0.xy, clamp(v_ls0.z, 0.0, 1.0)));
-#endif
     float sky = 0.5 + 0.5 * n.z;
-    vec3 lit_rgb = base * tex * (u_sun_rgb * sun + u_sky_rgb * sky + u_ambient_rgb);
+    vec3 sun_rgb = u_sun_rgb * sun;
+    vec3 light = sun_rgb + u_sky_rgb * sky + u_ambient_rgb;
+    vec3 lit_rgb = base * tex * light;
+#ifdef SHADOWS
+    // the share of this pixel's colour that the sun gives (haze included): what a shadow takes away
+    const vec3 lum = vec3(0.299, 0.587, 0.114);
+    float sun_share = dot(sun_rgb, lum) / max(dot(light, lum), 1e-4) * (1.0 - v_haze);
+    f_color = vec4(clamp(mix(lit_rgb, u_haze_color, v_haze), 0.0, 1.0), sun_share);
+#else
     f_color = vec4(clamp(mix(lit_rgb, u_haze_color, v_haze), 0.0, 1.0), 1.0);
+#endif
     f_depth = v_z;
     f_inst = v_inst;
 }
@@ -215,4 +209,36 @@ void main() { gl_Position = u_light * vec4(in_pos, 1.0); }
 DEPTH_FS = """
 #version 330
 void main() {}
+"""
+
+
+SHADOW_VS = """
+#version 330
+in vec2 in_xy;
+void main() { gl_Position = vec4(in_xy, 0.0, 1.0); }
+"""
+
+# One pixel per block of the camera image: back into the world from its z-depth, into the shadow map.
+SHADOW_FS = """
+#version 330
+uniform sampler2D u_depth;          // the camera pass's z-depth (metres; 0 or NaN: nothing there)
+uniform sampler2DShadow u_shadow;   // the world seen from the sun
+uniform mat3 u_r_map_optical;
+uniform vec3 u_eye;
+uniform vec4 u_k;                   // fx fy cx cy of the full-resolution camera
+uniform float u_height;             // full-resolution image height
+uniform mat4 u_light;               // map -> shadow map [0, 1]^3
+uniform float u_bias;               // shadow-map depth bias
+uniform int u_step;                 // camera pixels per shadow pixel, along each axis
+layout(location = 0) out float f_lit;
+void main() {
+    // the block's centre pixel in the full-resolution target (bottom-up)
+    ivec2 px = ivec2(gl_FragCoord.xy) * u_step + ivec2(u_step / 2);
+    float z = texelFetch(u_depth, px, 0).r;
+    if (!(z > 0.0)) { f_lit = 1.0; return; }
+    vec2 cv = vec2(float(px.x), u_height - 1.0 - float(px.y));  // OpenCV pixel (row 0 at the top)
+    vec3 p = u_r_map_optical * vec3((cv.x - u_k.z) / u_k.x * z, (cv.y - u_k.w) / u_k.y * z, z) + u_eye;
+    vec3 ls = (u_light * vec4(p, 1.0)).xyz;
+    f_lit = texture(u_shadow, vec3(ls.xy, clamp(ls.z - u_bias, 0.0, 1.0)));
+}
 """
