@@ -18,6 +18,7 @@ from uav_scenarios.core.scoring.trails import ObjectStateRecord, TrailTracker, b
 from uav_scenarios.errors import ScenarioConfigError
 from uav_scenarios.shell.environment import check_actors, scenario_environment, with_environment
 from uav_scenarios.shell.world_store import load_world
+from uav_sim_bridge.config import resolve_environment
 
 LOITER = REPO / "config" / "scenarios" / "loiter.yaml"
 SAR = REPO / "config" / "scenarios" / "search_and_rescue.yaml"
@@ -46,7 +47,10 @@ def test_environment_preset_and_free_values(tmp_path: Path) -> None:
     assert env.effects_for("nadir").jpeg_quality == 80
     assert env.depth_noise is not None
     # the bridge gets the scenario's environment; resolved, it is self-contained (what uav-run records)
-    assert node_params(scenario, "sim_bridge", RunContext())["environment"] == scenario.environment
+    # (as YAML text: ROS parameters cannot hold the nulls an environment may have)
+    passed = node_params(scenario, "sim_bridge", RunContext())["environment"]
+    assert yaml.safe_load(passed) == scenario.environment
+    assert resolve_environment(passed) == resolve_environment(scenario.environment)
     assert yaml.safe_load(yaml.safe_dump(merged))["visibility_m"] == 1500.0
     other = with_environment(scenario, "dusk_noise")
     assert scenario_environment(other, 47.4)[1].preset == "dusk_noise"
@@ -90,7 +94,9 @@ def test_actors_are_checked_against_the_world(tmp_path: Path) -> None:
     )
     plan = check_actors(good, world)
     assert person in {m.obj.name for m in plan.movers}
-    assert node_params(good, "sim_bridge", RunContext())["actors"]["people"]["moving"] == 2
+    actors = node_params(good, "sim_bridge", RunContext())["actors"]
+    assert actors["people"] == {"moving": 2, "speed_mps": [1.2, 1.4]}  # no nulls: ROS parameters cannot hold them
+    assert "seed" not in actors
     bad = load_scenario(_scenario(tmp_path, SMALL, actors={"objects": {"person_9999": {"motion": "random"}}}))
     with pytest.raises(ScenarioConfigError, match=r"scenario\.yaml: actors\.objects\.person_9999: no person"):
         check_actors(bad, world)

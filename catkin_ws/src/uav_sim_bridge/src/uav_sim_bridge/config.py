@@ -216,15 +216,23 @@ def load_environment_preset(name: str, presets_dir: Path | None = None) -> dict[
     return data
 
 
-def resolve_environment(raw: Mapping[str, Any] | None, presets_dir: Path | None = None) -> dict[str, Any]:
-    """An ``environment:`` mapping with its preset loaded and its free values merged over it (still a mapping:
-    :func:`uav_common.config.from_mapping` validates it as :class:`EnvironmentConfig`).
+def resolve_environment(raw: Mapping[str, Any] | str | None, presets_dir: Path | None = None) -> dict[str, Any]:
+    """An ``environment:`` mapping (or its YAML text) with its preset loaded and its free values merged over it
+    (still a mapping: :func:`uav_common.config.from_mapping` validates it as :class:`EnvironmentConfig`).
 
     Raises:
         ConfigError: unknown preset, or ``environment`` is not a mapping.
     """
     if raw is None:
         raw = {}
+    if isinstance(raw, str):  # YAML text: what a ROS parameter carries when the mapping has nulls
+        import yaml  # noqa: PLC0415
+
+        try:
+            raw = yaml.safe_load(raw) or {}
+        except yaml.YAMLError as err:
+            msg = f"environment: not valid YAML: {err}"
+            raise ConfigError(msg) from err
     if not isinstance(raw, Mapping):
         msg = f"environment must be a mapping (preset: NAME plus keys), got {raw!r}"
         raise ConfigError(msg)

@@ -300,12 +300,15 @@ def moving_objects_figure(run: RunData, path: Path) -> Path | None:
     fig, (ax_map, ax_t) = plt.subplots(1, 2, figsize=(12, 4.8), layout="constrained")
     if len(run.trajectory):
         ax_map.plot(run.trajectory[:, 1], run.trajectory[:, 2], color="0.35", lw=1.0, label="drone")
-    for k, (name, track) in enumerate(sorted(run.object_tracks.items())):
+    labelled: set[bool] = set()
+    for name, track in sorted(run.object_tracks.items()):
         arr = np.array(track)
         person = name.startswith("person")
-        ax_map.plot(arr[:, 1], arr[:, 2], lw=1.4, color=("tab:red" if person else "tab:blue"), alpha=0.8,
-                    label=("people" if person else "vehicles") if k < 2 else None)  # fmt: skip
-        ax_map.plot(arr[-1, 1], arr[-1, 2], "o", ms=3, color=("tab:red" if person else "tab:blue"))
+        label = None if person in labelled else ("people (dot: last position)" if person else "vehicles")
+        labelled.add(person)
+        color = "tab:red" if person else "tab:blue"
+        ax_map.plot(arr[:, 1], arr[:, 2], lw=1.4, color=color, alpha=0.8, label=label)
+        ax_map.plot(arr[-1, 1], arr[-1, 2], "o", ms=3, color=color)
     handles, labels = ax_map.get_legend_handles_labels()
     uniq = dict(zip(labels, handles, strict=False))
     ax_map.legend(uniq.values(), uniq.keys(), fontsize=8, loc="best")

@@ -159,7 +159,7 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
             det = dict(data.get("detections", {}))
             det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
             data["detections"] = det
-            env = dict(data.get("environment") or {})
+            env = resolve_environment(data.get("environment"))
             if isinstance(env.get("cameras"), dict):
                 env["cameras"] = {c: v for c, v in env["cameras"].items() if c in names or c == "default"}
                 data["environment"] = env
