@@ -11,7 +11,10 @@ import pytest
 from PIL import Image
 from sim_worlds import REPO
 
+from uav_sim_bridge.cli.contact_sheet import contact_sheet
 from uav_sim_bridge.cli.world import main
+from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.shell.world_store import load_or_generate
 
 SMALL = """name: cli
 seed: 2
@@ -91,10 +94,6 @@ def test_render_in_an_environment_and_the_contact_sheet(
     assert main([*args, "--environment", "sunny", "--out", str(tmp_path / "x")]) == 2
     assert "unknown environment preset 'sunny'" in capsys.readouterr().err
     # the contact sheet: a view per preset above, close-ups of each pose and vehicle below
-    from uav_sim_bridge.cli.contact_sheet import contact_sheet
-    from uav_sim_bridge.core.world_config import load_world_config
-    from uav_sim_bridge.shell.world_store import load_or_generate
-
     world = load_or_generate(load_world_config(world_yaml), tmp_path / "cache")
     sheet = contact_sheet(world, tmp_path / "sheet.png", presets=["clean", "low_sun"])
     img = np.asarray(Image.open(sheet))
