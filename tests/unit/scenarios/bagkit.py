@@ -279,6 +279,7 @@ def write_synthetic_run(path: Path, *, duration_s: float = 60.0, with_snapshots:
                     "movers": 2,
                     "distance_m": 5.0 * rel,
                     "mapped_voxels": 10.0 * rel,
+                    "seen_again_voxels": 8.0 * rel,
                     "ghost_voxels": 2.0 * rel,
                     "cleared_voxels": 6.0 * rel,
                     "cleared_fraction": 0.75,

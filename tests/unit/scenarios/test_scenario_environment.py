@@ -127,21 +127,28 @@ def test_trails_count_what_the_map_cleared_and_what_it_kept() -> None:
     def at(t: float, x: float) -> ObjectStateRecord:
         return ObjectStateRecord(t, np.array([[7.0, x, 0.0, 0.0, 0.0, *size]]), np.array([True]))
 
+    def seen_at(t: float | None, x_from: float = -100.0):
+        """The map's last_seen_s: ``t`` for columns east of ``x_from``, never elsewhere."""
+        return lambda x, y: np.where(x >= x_from, np.nan if t is None else t, np.nan)
+
     box0 = box_voxel_keys((0.0, 0.0, 0.0), 0.0, size, res)
     assert box0.size == 8 * 4 * 3  # 4 x 2 x 1.5 m at 0.5 m: voxel centres inside
     trails.add(at(0.0, 0.0))
-    s = trails.evaluate(0.0, box0)  # the map sees the car where it is
+    s = trails.evaluate(0.0, box0, seen_at(0.0))  # the map sees the car where it is
     assert (s.mapped, s.left, s.ghosts, s.cleared) == (box0.size, 0, 0, 0)
     trails.add(at(1.0, 10.0))  # it drove 10 m away
     box1 = box_voxel_keys((10.0, 0.0, 0.0), 0.0, size, res)
+    s = trails.evaluate(1.0, np.concatenate([box0, box1]), seen_at(None))  # not looked at again: nothing to judge
+    assert (s.left, s.seen_again, s.ghosts, s.cleared) == (box0.size, 0, 0, 0)
+    assert s.as_dict()["unseen_voxels"] == box0.size
     half = np.sort(box0)[: box0.size // 2]
-    s = trails.evaluate(1.0, np.concatenate([half, box1, ground[:5]]))  # half of its old place still occupied
-    assert s.left == box0.size
+    s = trails.evaluate(2.0, np.concatenate([half, box1, ground[:5]]), seen_at(2.0))  # seen again: half cleared
+    assert s.seen_again == box0.size
     assert s.ghosts == half.size
     assert s.cleared == box0.size - half.size
     assert s.cleared_fraction == pytest.approx(0.5)
     assert s.distance_m == pytest.approx(10.0)
-    s = trails.evaluate(2.0, box1)  # the map cleared the rest
+    s = trails.evaluate(3.0, box1, seen_at(3.0))  # the map cleared the rest
     assert (s.ghosts, s.cleared, s.cleared_fraction) == (0, box0.size, 1.0)
 
 

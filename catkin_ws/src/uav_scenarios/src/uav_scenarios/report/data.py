@@ -37,7 +37,7 @@ from uav_scenarios.ros.records import (
 __all__ = ["METRIC_COLUMNS", "TRAIL_COLUMNS", "CameraImage", "RunData", "read_run_bag"]
 
 #: ``moving_objects`` metrics that become ``trail_<name>`` time-series columns (from each summary).
-TRAIL_COLUMNS = ("mapped_voxels", "ghost_voxels", "cleared_voxels")
+TRAIL_COLUMNS = ("mapped_voxels", "seen_again_voxels", "ghost_voxels", "cleared_voxels")
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -321,9 +321,12 @@ def moving_objects_figure(run: RunData, path: Path) -> Path | None:
         t = ts["t_s"]
         for key, label, color in (
             ("trail_mapped_voxels", "mapped occupied while an object was there", "0.5"),
-            ("trail_cleared_voxels", "left behind and cleared by the map", "tab:green"),
-            ("trail_ghost_voxels", "left behind, still occupied (ghosts)", "tab:red"),
+            ("trail_seen_again_voxels", "... left, and the map looked there again", "tab:orange"),
+            ("trail_cleared_voxels", "... of those, cleared by the map", "tab:green"),
+            ("trail_ghost_voxels", "... of those, still occupied (ghosts)", "tab:red"),
         ):
+            if key not in ts:
+                continue
             ok = np.isfinite(ts[key])
             ax_t.step(t[ok], ts[key][ok], where="post", label=label, color=color)
         ax_t.legend(fontsize=8, loc="upper left")

@@ -55,9 +55,9 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
         ),
         (
             f"  moving objects {f('moving_objects.movers', '', 0)}, {f('moving_objects.distance_m', ' m', 0)} "
-            "travelled; voxels they left that the map had marked occupied: "
-            f"{f('moving_objects.cleared_voxels', '', 0)} "
-            f"cleared, {f('moving_objects.ghost_voxels', '', 0)} still occupied "
-            f"({f('moving_objects.cleared_fraction', '', 2)} cleared)"
+            "travelled; of the voxels they left that the map had marked occupied and looked at again, "
+            f"{f('moving_objects.cleared_voxels', '', 0)} cleared, {f('moving_objects.ghost_voxels', '', 0)} "
+            f"still occupied ({f('moving_objects.cleared_fraction', '', 2)} cleared; "
+            f"{f('moving_objects.unseen_voxels', '', 0)} not looked at since)"
         ),
     ]

@@ -210,7 +210,20 @@ class RunScorer:
             return None
         if self._trails.static_keys.size == 0 and self.truth.surface_keys.size:
             self._trails.static_keys = self.truth.surface_keys
-        return self._trails.evaluate(t_s, map_keys)
+        layers = self._layers
+        last_seen = None
+        if layers is not None and "last_seen_s" in layers.layers:
+            grid = np.asarray(layers.layers["last_seen_s"], dtype=np.float64)
+
+            def last_seen(x: np.ndarray[Any, Any], y: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+                col = np.floor((x - layers.origin_x_m) / layers.resolution_m).astype(np.int64)
+                row = np.floor((y - layers.origin_y_m) / layers.resolution_m).astype(np.int64)
+                ok = (row >= 0) & (row < grid.shape[0]) & (col >= 0) & (col < grid.shape[1])
+                out = np.full(len(x), np.nan)
+                out[ok] = grid[row[ok], col[ok]]
+                return out
+
+        return self._trails.evaluate(t_s, map_keys, last_seen)
 
     def set_map_accuracy(self, t_s: float, accuracy: VoxelAccuracy) -> None:
         """A map accuracy computed elsewhere (:func:`voxel_accuracy` is slow on big maps: off the lock)."""
