@@ -205,9 +205,11 @@ def lighting_for(env: EnvironmentConfig, latitude_deg: float, haze_distance_m: f
         haze = horizon
     else:
         haze_per_m, haze_max = 3.912 / env.visibility_m, 1.0
-        # fog scatters the light that reaches it: grey, as bright as the sky light
+        # thin haze takes the horizon's colour; fog (visibility of a few km and less) scatters all colours
+        # alike: grey, as bright as the horizon
         level = float(np.mean(horizon))
-        haze = horizon * 0.4 + np.full(3, level) * 0.6
+        grey = _smoothstep(15000.0, 2000.0, env.visibility_m) * 0.8
+        haze = horizon * (1.0 - grey) + np.full(3, level) * grey
     return Lighting(
         sun_dir=sun_direction(az, el),
         sun_rgb=_rgb(sun),
