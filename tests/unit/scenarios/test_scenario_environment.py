@@ -164,3 +164,21 @@ def test_environment_summary_table() -> None:
     assert "10/0/2" in lines[1]
     assert "0.810" in lines[1]
     assert lines[2].split()[:3] == ["haze", "1", "-"]
+
+
+def test_uav_run_checks_environments_and_actors_before_launching(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from uav_scenarios.cli.run import main  # noqa: PLC0415 - the CLI module pulls in the report's plotting
+
+    args = [str(LOITER), "--runs-dir", str(tmp_path / "runs"), "--world-cache-dir", str(tmp_path / "worlds")]
+    assert main([*args, "--environment", "sunny"]) == 2
+    assert "'environment.preset': unknown environment preset 'sunny'" in capsys.readouterr().err
+    assert main([*args, "--each-environment", "clean,sunny"]) == 2
+    assert "unknown environment preset 'sunny'" in capsys.readouterr().err
+    assert main([*args, "--each-environment", "--run-dir", str(tmp_path / "one")]) == 2
+    assert "--each-environment makes one per preset" in capsys.readouterr().err
+    bad = _scenario(tmp_path, LOITER, actors={"objects": {"person_9999": {"motion": "random"}}})
+    assert main([str(bad), "--world-cache-dir", str(tmp_path / "worlds")]) == 2
+    assert "actors.objects.person_9999: no person or vehicle" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()  # nothing was started
