@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             f"two 640x480 cameras per pair, {n} pairs each, alternating; clean {clean_hz:.1f} Hz "
             f"({1000 * cpu['clean'] / n:.0f} ms CPU per pair), stress {stress_hz:.1f} Hz "
             f"({1000 * cpu['stress'] / n:.0f} ms CPU per pair); stress = stress_all environment (sun at "
-            f"{engines['stress'].lighting.elevation_deg:.0f} deg, shadows, every camera effect, depth noise) + "
+            f"{engines['stress'].lighting.elevation_deg:.0f} deg, shadows, every camera effect) + "
             f"{movers} moving people and vehicles (drawn into the shadow map "
             f"{renderers['stress'].object_shadow_stamps} times for {frames} frame pairs: once per move); engine "
             f"start-up {init_s:.2f} s, first frames (shaders, static shadow map) {warm_s:.2f} s; CPU-time ratio "

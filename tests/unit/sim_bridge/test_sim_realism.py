@@ -41,7 +41,7 @@ from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import ObjectClass, PeopleConfig, WorldConfig
 from uav_sim_bridge.engine import BridgeEngine
 from uav_sim_bridge.errors import SimBridgeConfigError
-from uav_sim_bridge.render import Renderer
+from uav_sim_bridge.render import RenderedFrame, Renderer
 from uav_sim_bridge.shell.world_store import generate_world
 
 MOVERS = ActorsConfig(people=PeopleMotionConfig(moving=5), vehicles=VehicleMotionConfig(moving=3))
@@ -502,7 +502,7 @@ def test_each_camera_effect_changes_the_image_measurably(rendered) -> None:
     vig = diff(CameraEffectsConfig(vignetting=0.4))
     assert vig[:20, :20].mean() < -25.0
     assert abs(vig[110:130, 150:170].mean()) < 2.0
-    dark = replace(frame, color_rgb=(frame.color_rgb // 3).astype(np.uint8))
+    dark = RenderedFrame((frame.color_rgb // 3).astype(np.uint8), frame.depth_m, frame.instance_id)
     auto = _apply(cam, dark, CameraEffectsConfig(exposure=ExposureConfig(target=0.42, max_gain=8.0)))
     assert auto.exposure_s > 0.004
     assert auto.color_rgb.mean() > 2.0 * dark.color_rgb.mean()

@@ -393,8 +393,10 @@ class BridgeEngine:
             elif cfg.environment.depth_noise is not None:
                 depth = degrade_depth(frame.depth_m, cfg.environment.depth_noise, self._depth_rng)
             if effects is not None and not dropped:
+                rendered, motion = frame, self._camera_motion(cam, state)
+                # the colour is read in the effects thread: with shadows, finishing it is part of the job there
                 job = self._effects_pool().submit(
-                    effects.apply, frame.color_rgb, frame.depth_m, t, self._camera_motion(cam, state)
+                    lambda: effects.apply(rendered.color_rgb, rendered.depth_m, t, motion)
                 )
         else:
             det_cam = self._detection_cameras[name]

@@ -27,7 +27,7 @@ from __future__ import annotations
 import itertools
 import math
 import threading
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -47,19 +47,45 @@ from uav_sim_bridge.render import shaders
 __all__ = ["RenderSettings", "RenderedFrame", "Renderer", "gl_projection", "gl_view"]
 
 
-@dataclass(frozen=True)
 class RenderedFrame:
     """One camera image set; all arrays are ``(H, W, ...)`` with row 0 at the top.
 
     Attributes:
-        color_rgb: uint8 RGB.
+        color_rgb: uint8 RGB. With shadows it is finished on first access (the sun's share taken away where
+            the shadow pass found shade, ~1 ms of OpenCV), so whoever reads it first does that work: the
+            bridge reads it in its camera-effects thread, beside the next render.
         depth_m: float32 z-depth along the optical axis in metres, NaN where nothing was hit.
         instance_id: uint16 world instance id, 0 for the sky.
     """
 
-    color_rgb: npt.NDArray[np.uint8]
-    depth_m: npt.NDArray[np.float32]
-    instance_id: npt.NDArray[np.uint16]
+    __slots__ = ("_color", "_lock", "_shade", "depth_m", "instance_id")
+
+    def __init__(
+        self,
+        color_rgb: npt.NDArray[np.uint8] | None,
+        depth_m: npt.NDArray[np.float32],
+        instance_id: npt.NDArray[np.uint16],
+        *,
+        shade: Callable[[], npt.NDArray[np.uint8]] | None = None,
+    ) -> None:
+        if color_rgb is None and shade is None:
+            msg = "a rendered frame needs its colour or the function that finishes it"
+            raise ValueError(msg)
+        self._color = color_rgb
+        self._shade = shade
+        self._lock = threading.Lock()
+        self.depth_m = depth_m
+        self.instance_id = instance_id
+
+    @property
+    def color_rgb(self) -> npt.NDArray[np.uint8]:
+        if self._color is None:
+            with self._lock:
+                if self._color is None:
+                    assert self._shade is not None
+                    self._color = self._shade()
+                    self._shade = None
+        return self._color
 
 
 def gl_projection(camera: CameraModel) -> npt.NDArray[np.float64]:
@@ -575,28 +601,26 @@ class Renderer:
         if not target.buf_depth.all():
             self.sky_vao.render(self._mgl.TRIANGLES)
             fbo.read_into(target.buf_depth, attachment=1, components=1, dtype="f4", alignment=1)
-        if self._shadow_mode:
-            color = self._shadowed_color(camera, t_map_optical, target)
-        else:
+        shade = self._shadow_pass(camera, t_map_optical, target) if self._shadow_mode else None
+        if shade is None:
             fbo.read_into(target.buf_color, attachment=0, components=3, dtype="f1", alignment=1)
-            color = target.buf_color
         fbo.read_into(target.buf_inst, attachment=2, components=1, dtype="u4", alignment=1)
         return RenderedFrame(
-            color_rgb=np.ascontiguousarray(color[::-1]),
-            depth_m=np.ascontiguousarray(target.buf_depth[::-1]),
-            instance_id=target.buf_inst[::-1].astype(np.uint16),
+            None if shade is not None else np.ascontiguousarray(target.buf_color[::-1]),
+            np.ascontiguousarray(target.buf_depth[::-1]),
+            target.buf_inst[::-1].astype(np.uint16),
+            shade=shade,
         )
 
     # ------------------------------------------------------------------ shadows
     _shadow_mode = 0
 
-    def _shadowed_color(self, camera: CameraModel, t_map_optical: RigidTransform, target: _Target) -> Any:
-        """The camera pass's colour with the sun's share taken away where the shadow map says so (bottom-up rows).
-
-        The lit fraction is found at half resolution (one pixel per 2x2 block) and interpolated back.
-        """
-        import cv2  # noqa: PLC0415
-
+    def _shadow_pass(
+        self, camera: CameraModel, t_map_optical: RigidTransform, target: _Target
+    ) -> Callable[[], npt.NDArray[np.uint8]]:
+        """The lit fraction of every ``shadow_step`` x ``shadow_step`` block (GL, now), and a function that takes
+        the sun's share away where it is shadowed (OpenCV, on first access of the frame's colour, in any thread:
+        it works on copies)."""
         step = self.settings.shadow_step
         target.shadow_buffers(self.ctx, step)
         sp = self.sprog
@@ -613,14 +637,22 @@ class Renderer:
         self.shadow_vao.render(self._mgl.TRIANGLES)
         target.fbo_lit.read_into(target.buf_lit, components=1, dtype="f1", alignment=1)
         target.fbo.read_into(target.buf_alpha, attachment=0, components=4, dtype="f1", alignment=1)
-        h, w = camera.height, camera.width
-        # back to full resolution: each block's value at its centre pixel, linear in between
-        lit = cv2.resize(target.buf_lit, (w, h), interpolation=cv2.INTER_LINEAR)
-        # factor = 1 - (1 - lit) * sun_share, in 1/255 units: 255 - (255 - lit) * share / 255
-        share = cv2.extractChannel(target.buf_alpha, 3)
-        factor = cv2.bitwise_not(cv2.multiply(cv2.bitwise_not(lit), share, scale=1.0 / 255.0))
-        factor4 = cv2.cvtColor(factor, cv2.COLOR_GRAY2RGBA)
-        return cv2.multiply(target.buf_alpha, factor4, scale=1.0 / 255.0)[:, :, :3]
+        rgba = target.buf_alpha[::-1].copy()  # top row first, and the target's buffers are reused next frame
+        lit_low = target.buf_lit[::-1].copy()
+        size = (camera.width, camera.height)
+
+        def shade() -> npt.NDArray[np.uint8]:
+            import cv2  # noqa: PLC0415
+
+            # back to full resolution: each block's value at its centre pixel, linear in between
+            lit = cv2.resize(lit_low, size, interpolation=cv2.INTER_LINEAR)
+            # factor = 1 - (1 - lit) * sun_share, in 1/255 units: 255 - (255 - lit) * share / 255
+            share = cv2.extractChannel(rgba, 3)
+            factor = cv2.bitwise_not(cv2.multiply(cv2.bitwise_not(lit), share, scale=1.0 / 255.0))
+            out = cv2.multiply(rgba, cv2.cvtColor(factor, cv2.COLOR_GRAY2RGBA), scale=1.0 / 255.0)
+            return np.ascontiguousarray(out[:, :, :3])
+
+        return shade
 
     def _light_basis(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         w = np.asarray(self.lighting.sun_dir, dtype=np.float64)
