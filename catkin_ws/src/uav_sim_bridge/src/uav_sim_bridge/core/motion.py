@@ -19,6 +19,7 @@ for the same times, and the ground truth of any instant can be recomputed.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -51,7 +52,7 @@ FloatArray = npt.NDArray[np.float64]
 
 _ROAD_LIFT_M = 0.12  # the generator's road surface above the terrain (generator.ROAD_LIFT_M)
 _LANE_OFFSET_M = 1.4  # lane centre from the road's centreline
-_SHOULDER_CLEAR_M = 1.9  # a road walker's distance beyond the road's edge (past kerb-parked vehicles)
+_SHOULDER_CLEAR_M = 2.6  # a road walker's distance beyond the road's edge (past kerb-parked trucks)
 _GRID_M = 1.0
 
 
@@ -309,6 +310,30 @@ def _random_loop(start: FloatArray, radius_m: float, blocked: _Blocked, rng: np.
     return None
 
 
+def _shoulder_walk(
+    line: FloatArray, near: tuple[float, float], offset_m: float, blocked: _Blocked
+) -> FloatArray | None:
+    """A walk along a stretch of a road's shoulders around ``near`` (up one side, across, back the other), the
+    longest of 160, 80 or 40 m that is clear; None if none is."""
+    p = resample_polyline(line, 2.0)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    s0 = float(s[int(np.argmin(np.hypot(p[:, 0] - near[0], p[:, 1] - near[1])))])
+    for half in (80.0, 40.0, 20.0):
+        part = p[(s >= s0 - half) & (s <= s0 + half)]
+        if len(part) < 3:
+            continue
+        loop = _lane_loop(part, offset_m)
+        if _loop_clear(loop, blocked):
+            return loop
+    return None
+
+
+def _loop_clear(points: FloatArray, blocked: _Blocked) -> bool:
+    """Whether a closed path crosses nothing (buildings, trees, vehicles, the map's edge, home's pad)."""
+    closed = np.concatenate([points, points[:1]])
+    return all(blocked.clear(a, b) for a, b in itertools.pairwise(closed))
+
+
 def _lane_loop(line: FloatArray, offset_m: float) -> FloatArray:
     """Along ``line`` offset to the right by ``offset_m``, then back along it offset to the other side."""
     p = resample_polyline(line, 2.0)
@@ -438,7 +463,13 @@ def plan_motion(  # noqa: PLR0912, PLR0915 - one pass over people and one over v
             path = _path_loop(ov.path_m)
         elif how == "road":
             road_k, _ = _nearest_road(roads, x, y)
-            path = LoopPath.from_points(_lane_loop(roads.polylines[road_k], roads.width_m / 2 + _SHOULDER_CLEAR_M))
+            loop = _shoulder_walk(roads.polylines[road_k], (x, y), roads.width_m / 2 + _SHOULDER_CLEAR_M, blocked)
+            if loop is None:  # building corners or parked trucks on the shoulders all along
+                if forced:
+                    err = _fail(f"objects.{o.name}.motion", "road: the shoulder of its road is blocked; give a path")
+                    raise err
+                continue
+            path = LoopPath.from_points(loop)
         else:
             pts = _random_loop(np.array([x, y]), wander, blocked, rng_people)
             if pts is None:
