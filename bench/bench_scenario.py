@@ -346,7 +346,11 @@ def main() -> int:
             f"moving (actors: people.moving 0, vehicles.moving 0), same run: real-time factor "
             f"{rtf:.2f}x vs {static.rtf():.2f}x ({100 * drop:+.1f} % drop; static runs {static.rtfs()}); CPU "
             f"{cpu:.3f} vs {static.cpu_per_sim_s():.3f} cpu-s/sim-s; map server dropped {loiter.dropped_pct():.1f} % "
-            f"vs {static.dropped_pct():.1f} % of its frames; machine probe {static.probe_notes()}",
+            f"vs {static.dropped_pct():.1f} % of its frames; per node (moving vs static): "
+            + ", ".join(
+                f"{k} {v:.3f}/{static.per_node().get(k, 0.0):.3f}" for k, v in loiter.per_node().items() if v >= 0.005
+            )
+            + f"; machine probe {static.probe_notes()}",
         )
     return 0
 

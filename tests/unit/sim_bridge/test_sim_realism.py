@@ -291,10 +291,10 @@ def test_moving_person_ground_truth_matches_its_rendered_mask(flat_people: tuple
         seen += 1
     assert seen == 12
     # lockstep: the same time gives the same world, whatever happened in between
-    eng.sync_movers(2.0)
+    eng.sync_movers(2.0, render=True)
     a = renderer.render(cam, look_at([36.0, 33.0, 18.0], [36.0, 33.0, 0.0])).instance_id
-    eng.sync_movers(5.5)
-    eng.sync_movers(2.0)
+    eng.sync_movers(5.5, render=True)
+    eng.sync_movers(2.0, render=True)
     b = renderer.render(cam, look_at([36.0, 33.0, 18.0], [36.0, 33.0, 0.0])).instance_id
     assert np.array_equal(a, b)
 

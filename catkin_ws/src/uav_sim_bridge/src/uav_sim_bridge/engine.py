@@ -155,12 +155,14 @@ class BridgeEngine:
         for m in self._walkers:
             self._reshape_person(m.obj, PersonPose.WALKING)
         self._gaits = self._gait_cycles([m.obj for m in self._walkers])
-        boxes = [
-            (m.path.points_m.min(axis=0), m.path.points_m.max(axis=0), 0.5 * float(np.linalg.norm(m.obj.size_m)))
-            for m in self.motion.movers
-        ]
-        self._path_lo = np.array([b[0] - b[2] for b in boxes]).reshape(-1, 2)
-        self._path_hi = np.array([b[1] + b[2] for b in boxes]).reshape(-1, 2)
+        # where the movers were at the last sync, how far they reach and how fast they go (collision pre-test)
+        self._mover_radius = {
+            m.obj.instance_id: 0.5 * float(np.linalg.norm(m.obj.size_m)) + 1.0 for m in self.motion.movers
+        }
+        self._mover_xy = np.zeros((0, 2))
+        self._mover_reach = np.zeros(0)
+        self._mover_speed = np.zeros(0)
+        self._renderer_stale: list[MoverState] = []
         # Detection-only renders stop past the detection range plus the largest movable object:
         # nothing farther can hide or be an object whose centre is in range.
         largest_m = max((float(np.linalg.norm(o.size_m)) for o in self._objects.values()), default=0.0)
@@ -224,13 +226,38 @@ class BridgeEngine:
         )
         self._spheres = None
 
-    def sync_movers(self, t_s: float) -> None:
-        """Pose every moving person and vehicle at simulation time ``t_s`` (once per distinct time)."""
+    def sync_movers(self, t_s: float, *, render: bool = False) -> None:
+        """Pose every moving person and vehicle at simulation time ``t_s`` (once per distinct time): their records,
+        collision shapes and, before the next render (``render``: now), the renderer's meshes."""
         if self._synced_t == t_s or not self.motion.movers:
             self._synced_t = t_s
+            if render:
+                self._sync_renderer()
             return
         self._synced_t = t_s
         states = [st for st in self.motion.states_at(t_s, self.world.terrain) if st.instance_id not in self._moved_ids]
+        for st in states:
+            iid = st.instance_id
+            self._moving[iid] = st
+            self.collisions.set_object_pose(iid, st.pose)
+            o = self._objects[iid]
+            self._objects[iid] = WorldObject(o.instance_id, o.object_class, o.name, st.pose, o.size_m, o.kind, o.shape)
+        if states:
+            self._mover_xy = np.array([st.pose.position_m[:2] for st in states])
+            self._mover_reach = np.array([self._mover_radius[st.instance_id] for st in states])
+            self._mover_speed = np.array([math.hypot(*st.velocity_mps[:2]) for st in states])
+        self._renderer_stale = states
+        self._spheres = None
+        if render:
+            self._sync_renderer()
+
+    def _sync_renderer(self) -> None:
+        """Give the renderer the movers' last synced poses and gait (only when something is about to be drawn)."""
+        states = self._renderer_stale
+        if not states:
+            return
+        self._renderer_stale = []
+        states = [st for st in states if st.instance_id not in self._moved_ids]  # moved by a request since
         walkers = [st for st in states if st.instance_id in self._gaits]
         if walkers:  # the gait: new limb positions first (one batch), then every mover's pose
             ids = [st.instance_id for st in walkers]
@@ -239,20 +266,16 @@ class BridgeEngine:
             normals = np.stack([self._gaits[i][1][j] for i, j in zip(ids, k, strict=True)])
             self.renderer.set_object_shapes(ids, verts, normals)
         for st in states:
-            iid = st.instance_id
-            self._moving[iid] = st
-            self.renderer.set_object_pose(iid, st.pose)
-            self.collisions.set_object_pose(iid, st.pose)
-            self._objects[iid] = dataclasses.replace(self._objects[iid], pose=st.pose)
-        self._spheres = None
+            self.renderer.set_object_pose(st.instance_id, st.pose)
 
-    def _movers_near(self, position_m: npt.NDArray[np.float64], margin_m: float) -> bool:
-        """Whether any moving object's path (plus its size and ``margin_m``) comes near ``position_m``."""
-        if not len(self._path_lo):
+    def _movers_near(self, position_m: npt.NDArray[np.float64], t_s: float, margin_m: float) -> bool:
+        """Whether any moving object may be within ``margin_m`` of ``position_m`` at ``t_s``: its distance at the
+        last sync, less its size and how far it can have moved since."""
+        if not len(self._mover_xy) or self._synced_t is None:
             return False
-        p = position_m[:2]
-        inside = np.all((p >= self._path_lo - margin_m) & (p <= self._path_hi + margin_m), axis=1)
-        return bool(inside.any())
+        d = np.hypot(*(self._mover_xy - position_m[:2]).T)
+        travel = self._mover_speed * abs(t_s - self._synced_t)
+        return bool(np.any(d - self._mover_reach - travel <= margin_m))
 
     def object_states(self) -> list[ObjectState]:
         """The moving people and vehicles (and those moved by a request) as of the last sync."""
@@ -353,10 +376,11 @@ class BridgeEngine:
             effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
             outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
         outputs = self._deliver(outputs, t)
-        if self._movers_near(state.position_m, cfg.collision.vehicle_radius_m + 2.0) or (
-            self._previous_position is not None and self._movers_near(self._previous_position, 2.0)
+        reach = cfg.collision.vehicle_radius_m + 1.0
+        if self._movers_near(state.position_m, t, reach) or (
+            self._previous_position is not None and self._movers_near(self._previous_position, t, reach)
         ):
-            self.sync_movers(t)
+            self.sync_movers(t)  # a mover may be within reach: collisions need it where it is now
         contacts = self.collisions.check(self._previous_position, state.position_m)
         self._previous_position = state.position_m.copy()
         touching = {c.instance_id for c in contacts}
@@ -385,6 +409,7 @@ class BridgeEngine:
             det_cam = cam
             effects = self.effects.get(name)
             dropped = effects.drop() if effects is not None else False
+            self._sync_renderer()
             frame = self.renderer.render(cam, t_opt)
             instance_id = frame.instance_id
             depth = frame.depth_m
@@ -402,12 +427,14 @@ class BridgeEngine:
             det_cam = self._detection_cameras[name]
             if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
                 return CameraOutput(cam, t_opt, None, None, [], t), None
+            self._sync_renderer()
             instance_id = self.renderer.render_instances(det_cam, t_opt)
         dets = None
         if detect:
             cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
             dets = []  # most frames: nobody in view, and the per-pixel work below is skipped
             if cands:
+                self._sync_renderer()
                 alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands)
                 objs = {iid: self._objects[iid] for iid in cands}
                 dets = ground_truth_detections(instance_id, t_opt, objs, cfg.detections, alone)
