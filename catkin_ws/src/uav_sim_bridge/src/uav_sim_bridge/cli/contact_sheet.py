@@ -5,9 +5,10 @@ what a camera sees of each person pose and vehicle type from 30, 60 and 100 m.
   preset in ``config/environments/``, each with the preset's camera effects (the camera flying at 12 m/s and
   turning, so motion blur shows where the preset has it).
 * Bottom: close-ups. Each person pose (standing, walking, sitting, lying) and each vehicle type (car, van,
-  truck) is put on open ground and seen by the 640x480, 90 degree camera from 30, 60 and 100 m (slant range,
-  45 degrees down) in the ``clear_noon`` preset; each tile is the camera's own pixels around the object,
-  enlarged without smoothing, so the tile shows exactly what a detector gets at that range.
+  truck) is put on open ground and seen by the 640x480, 90 degree camera from 12 (detail), 30, 60 and 100 m
+  (slant range, 45 degrees down) in the ``clear_noon`` preset at 9:30 (shadows show); each tile is the
+  camera's own pixels around the object, enlarged without smoothing, so the tile shows exactly what a
+  detector gets at that range.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from uav_sim_bridge.render import Renderer
 __all__ = ["contact_sheet"]
 
 U8 = npt.NDArray[np.uint8]
-_TILE_W, _TILE_H = 480, 360
+_TILE_W, _TILE_H = 400, 300
 _TILE = 192  # close-up tile side, screen pixels
 #: Slant ranges of the close-ups and the camera pixels around the subject each tile shows (enlarged without
 #: smoothing to the tile): 12 m to see the shapes, then the 30, 60 and 100 m a detector has to cope with.
@@ -145,8 +146,12 @@ def _reshape(renderer: Renderer, obj: WorldObject, pose: PersonPose) -> float:
     return float(figures.person_boxes([height], [build], [int(pose)])[0][2])
 
 
+#: The close-ups' light: the clear_noon preset's sky and camera in mid-morning, so the shadows show.
+_CLOSEUP_ENV = {"preset": "clear_noon", "time_of_day_h": 9.5}
+
+
 def _closeup_tiles(world: World, renderer: Renderer) -> tuple[list[list[U8]], list[str]]:
-    env = _environment("clear_noon")
+    env = from_mapping(EnvironmentConfig, resolve_environment(_CLOSEUP_ENV), source="contact sheet")
     renderer.set_lighting(lighting_for(env, world.config.latitude_deg))
     cam = CameraModel.from_config("closeup", default_cameras()["forward"])
     sx, sy = _stage(world)
@@ -173,7 +178,7 @@ def _closeup_tiles(world: World, renderer: Renderer) -> tuple[list[list[U8]], li
             color = effects.apply(frame.color_rgb, frame.depth_m, 0.0).color_rgb if effects else frame.color_rgb
             uv, _ = cam.project(pose_cam.inverse().apply(target[None]))
             cu, cv = round(float(uv[0, 0])), round(float(uv[0, 1]))
-            half = crop_px // 2
+            half = (crop_px if pose is not None else round(1.6 * crop_px)) // 2  # vehicles: a wider view
             cu = min(max(cu, half), cam.width - half)
             cv = min(max(cv, half), cam.height - half)
             crop = color[cv - half : cv + half, cu - half : cu + half]
@@ -213,7 +218,7 @@ def contact_sheet(world: World, out: Path, presets: list[str] | None = None) -> 
     names = presets or environment_presets()
     renderer = Renderer(world)
     try:
-        top = _grid(_preset_tiles(world, renderer, names), cols=3)
+        top = _grid(_preset_tiles(world, renderer, names), cols=4)
         rows, _ = _closeup_tiles(world, renderer)
     finally:
         renderer.close()
@@ -230,7 +235,7 @@ def contact_sheet(world: World, out: Path, presets: list[str] | None = None) -> 
     title = f"world {world.config.name} (seed {world.config.seed}): one view under each environment preset"
     closeups = (
         "what the 640x480, 90 deg camera sees of each pose and vehicle at 12 (detail), 30, 60 and 100 m "
-        "(clear_noon, its camera effects; camera pixels enlarged)"
+        "(clear_noon's camera at 9:30 solar time; camera pixels enlarged)"
     )
     sheet = np.concatenate([pad(_banner(title, width)), pad(top), pad(_banner(closeups, width)), pad(bottom)])
     out.parent.mkdir(parents=True, exist_ok=True)
