@@ -89,6 +89,8 @@ def test_loiter_launch_runs_from_the_install_space(tmp_path: Path) -> None:
                         cmd = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
                     except OSError:
                         continue  # it exited in between
+                    if not any(str(tmp_path) in c for c in cmd):
+                        continue  # another run's node on the same machine (its __log is not under our ROS_LOG_DIR)
                     seen[node] = next((c for c in cmd if "/lib/uav_" in c), cmd[0])
             time.sleep(0.5)
         assert set(seen) == {"scorer", "waypoint_controller", "map_server"}, f"{seen}\n{launch.tail()}"
