@@ -467,6 +467,32 @@ def test_people_cast_shadows_too(flat_people: tuple[World, Renderer]) -> None:
         renderer.set_object_pose(person.instance_id, person.pose)
 
 
+def test_moving_shadows_redraw_only_what_moved_and_match_a_fresh_map(world: World) -> None:
+    # people and vehicles moved a few times (each move redraws only them and their neighbours in the shadow map):
+    # the map is then exactly the one a renderer that only ever saw them at their last poses draws
+    movers = [*world.objects_of_class(ObjectClass.PERSON)[:3], *world.objects_of_class(ObjectClass.VEHICLE)[:2]]
+    env = EnvironmentConfig(sun_azimuth_deg=120.0, sun_elevation_deg=25.0, shadows=True)
+    cam, view = _nadir(160, 120), look_at([0.0, 0.0, 200.0], [0.0, 1.0, 0.0])
+
+    def shadow_map(shifts: list[float]) -> np.ndarray:
+        r = Renderer(world, SimBridgeConfig().render)
+        try:
+            r.set_lighting(lighting_for(env, 47.4))
+            for d in shifts:
+                for obj in movers:
+                    x, y, z = obj.pose.position_m
+                    r.set_object_pose(obj.instance_id, ObjectPose((x + d, y + 0.5 * d, z), 0.3 * d))
+                r.render(cam, view)
+            with r.ctx:
+                return np.frombuffer(r._shadow_static[0].read(), dtype=np.float32).copy()
+        finally:
+            r.close()
+
+    moved, fresh = shadow_map([0.0, 1.5, 4.0, 0.8]), shadow_map([0.8])
+    assert not np.array_equal(moved, shadow_map([0.0]))  # they cast shadows where they stand
+    np.testing.assert_array_equal(moved, fresh)
+
+
 # ------------------------------------------------------------------------------------------------ camera effects
 @pytest.fixture(scope="module")
 def rendered(world: World, renderer: Renderer):

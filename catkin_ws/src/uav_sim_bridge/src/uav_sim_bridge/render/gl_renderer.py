@@ -194,6 +194,7 @@ class Renderer:
         self._static_depth = np.zeros((1, 1), np.float32)  # host copy of the static shadow map
         self._stamps: dict[int, tuple[int, int, int, int]] = {}  # texel rectangles the movers were drawn into
         self._stamps_dirty = True
+        self._stamp_moved: set[int] = set()  # people and vehicles moved since they were last drawn into it
         self._shadow_texel = (1.0, 1.0)
         self._shadow_bias = 0.0
         self.object_shadow_stamps = 0  # how often people and vehicles were drawn into the shadow map
@@ -429,6 +430,7 @@ class Renderer:
         self._poses[instance_id] = pose
         self._dyn_changed.add(instance_id)
         self._dyn_dirty = True
+        self._stamp_moved.add(instance_id)
         self._stamps_dirty = True
 
     def set_object_shape(self, instance_id: int, local_vertices_m: npt.ArrayLike) -> None:
@@ -650,7 +652,9 @@ class Renderer:
             share = cv2.extractChannel(rgba, 3)
             factor = cv2.bitwise_not(cv2.multiply(cv2.bitwise_not(lit), share, scale=1.0 / 255.0))
             out = cv2.multiply(rgba, cv2.cvtColor(factor, cv2.COLOR_GRAY2RGBA), scale=1.0 / 255.0)
-            return np.ascontiguousarray(out[:, :, :3])
+            return np.asarray(
+                cv2.cvtColor(out, cv2.COLOR_RGBA2RGB), dtype=np.uint8
+            )  # ~60x faster than a numpy slice copy (640x480: 0.025 vs 1.5 ms), same bytes
 
         return shade
 
@@ -695,7 +699,14 @@ class Renderer:
         return tex, self.ctx.framebuffer(depth_attachment=tex)
 
     def _draw_depth(
-        self, fbo: Any, light: npt.NDArray[np.float64], vao: Any, vertices: int | None = None, *, clear: bool
+        self,
+        fbo: Any,
+        light: npt.NDArray[np.float64],
+        vao: Any,
+        vertices: int | None = None,
+        *,
+        first: int = 0,
+        clear: bool,
     ) -> None:
         fbo.use()
         if clear:
@@ -708,7 +719,7 @@ class Renderer:
         if vertices is None:
             vao.render(self._mgl.TRIANGLES)
         else:
-            vao.render(self._mgl.TRIANGLES, vertices=vertices)
+            vao.render(self._mgl.TRIANGLES, vertices=vertices, first=first)
         self.ctx.polygon_offset = (0.0, 0.0)
 
     def _render_static_shadows(self) -> None:
@@ -740,28 +751,44 @@ class Renderer:
         self.static_shadow_renders += 1
 
     def _stamp_object_shadows(self) -> None:
-        """Put the people and vehicles into the shadow map where they are now (once per move, for every camera):
-        the static depth is written back where each stood, then all of them are drawn over the static world."""
+        """Put the people and vehicles into the shadow map where they are now (once per move, for every camera).
+
+        Only what changed is redrawn: the static depth is written back where each moved object stood, then the
+        moved objects are drawn where they stand, with any other object whose texels that write-back touched.
+        After a new static map (``self._stamps`` empty) every object is drawn."""
         if not self.dynamic_triangles:
             return
         tex, fbo = self._shadow_static
         size = self.settings.shadow_map_px
-        for x0, y0, x1, y1 in self._stamps.values():
+        moved = set(self._dyn_ranges) if not self._stamps else self._stamp_moved & set(self._dyn_ranges)
+        restored = [self._stamps.pop(iid) for iid in moved if iid in self._stamps]
+        for x0, y0, x1, y1 in restored:
             tex.write(
                 np.ascontiguousarray(self._static_depth[y0:y1, x0:x1]).tobytes(), viewport=(x0, y0, x1 - x0, y1 - y0)
             )
-        self._upload_dynamic_changes()
-        self._draw_depth(fbo, self._light0, self._dyn_shadow_vao, clear=False)
-        stamps = {}
-        for iid, pose in self._poses.items():
-            c = self._light0 @ np.array([*pose.position_m, 1.0])
+        redraw = set(moved)
+        for iid, (x0, y0, x1, y1) in self._stamps.items():  # unmoved objects the write-back reached
+            if any(x0 < b[2] and b[0] < x1 and y0 < b[3] and b[1] < y1 for b in restored):
+                redraw.add(iid)
+        for iid in moved:
+            c = self._light0 @ np.array([*self._poses[iid].position_m, 1.0])
             r = self._dyn_radius.get(iid, 0.0)
             rx, ry = r / self._shadow_texel[0] + 2.0, r / self._shadow_texel[1] + 2.0
             x0, x1 = int(max(0, math.floor(c[0] * size - rx))), int(min(size, math.ceil(c[0] * size + rx)))
             y0, y1 = int(max(0, math.floor(c[1] * size - ry))), int(min(size, math.ceil(c[1] * size + ry)))
             if x1 > x0 and y1 > y0:
-                stamps[iid] = (x0, y0, x1, y1)
-        self._stamps = stamps
+                self._stamps[iid] = (x0, y0, x1, y1)
+        self._upload_dynamic_changes()
+        # one draw per run of consecutive index ranges (a draw costs ~0.15 ms on llvmpipe, an object ~0.015 ms)
+        runs: list[list[int]] = []
+        for first, count in sorted(self._dyn_ranges[iid] for iid in redraw):
+            if runs and runs[-1][0] + runs[-1][1] == first:
+                runs[-1][1] += count
+            else:
+                runs.append([first, count])
+        for first, count in runs:
+            self._draw_depth(fbo, self._light0, self._dyn_shadow_vao, count, first=first, clear=False)
+        self._stamp_moved.clear()
         self._stamps_dirty = False
         self.object_shadow_stamps += 1
 
