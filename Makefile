@@ -5,10 +5,10 @@ SHELL := /bin/bash
 .DEFAULT_GOAL := help
 IN_ENV := scripts/in_env
 
-.PHONY: help setup apt venv build demo test test-unit test-ros test-e2e check lint typecheck format bench docker-build docker-run clean distclean
+.PHONY: help setup apt venv build demo test test-unit test-ros test-e2e check lint typecheck format bench campaign-smoke campaign-loiter docker-build docker-run clean distclean
 
 help: ## list the targets
-	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-13s %s\n", $$1, $$2}'
+	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
 
 setup: ## install Debian packages, the .venv and build the catkin workspace (idempotent)
 	@scripts/setup.sh all
@@ -52,6 +52,12 @@ typecheck: setup
 
 bench: setup ## run every benchmark; appends JSON lines to bench/results/latest.jsonl
 	@$(IN_ENV) python bench/run.py
+
+campaign-smoke: setup ## the CI-sized campaign (4 short runs) on an embedded Dask cluster -> runs/campaigns/smoke
+	@$(IN_ENV) uav-campaign run config/campaigns/smoke.yaml --out runs/campaigns/smoke
+
+campaign-loiter: setup ## the loiter weighting study (16 runs of 480 s, ~1 h on 2 cores, niced) -> runs/campaigns/loiter_weights
+	@nice -n 10 $(IN_ENV) uav-campaign run config/campaigns/loiter_weights.yaml --out runs/campaigns/loiter_weights
 
 docker-build: ## build docker/Dockerfile (needs a Docker engine)
 	docker build -f docker/Dockerfile -t uav-test-range .

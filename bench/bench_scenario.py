@@ -29,6 +29,13 @@ Results (``bench/results/latest.jsonl``):
 * ``scenario.loiter.rtf_nadir_10hz``: the same loiter with the nadir (mapping) camera at 10 Hz, its default
   until stop 17 (config/sim_bridge.yaml says why it is 5 Hz now); baseline: the default loiter's. Its notes
   give the frames the map server dropped and the CPU per simulated second. ``--skip-nadir-10hz`` leaves it out.
+* ``scenario.loiter.rtf_autopilot_lossy``: the same loiter flown, mapped and planned on the autopilot's own
+  estimate (``pose_source: autopilot``: the autopilot odometry node, ODOMETRY over the router, tf
+  ``map -> odom -> base_link``) over the ``lossy_link`` stress preset (20 % of the frames lost each way on the
+  controller's link, 30 ms delay, 20 ms jitter, 1 % reordered; the GCS link fading); baseline: the default
+  loiter's in the same run. Issue 23 allows it to lose at most 10 % (ratio >= 0.9). Its notes give the pose
+  error, the map precision of both, the frames dropped and the autopilot odometry node's CPU. Wind joins it
+  when the SITL simulates wind. ``--skip-autopilot-lossy`` leaves it out.
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
@@ -64,6 +71,8 @@ from benchlib import REPO, record
 LOITER = REPO / "config/scenarios/loiter.yaml"
 LAWNMOWER = REPO / "bench/scenarios/loiter_lawnmower.yaml"
 RTF_TARGET = 3.0
+#: The autopilot-pose, lossy-link loop may lose at most this share of the clean loop's real-time factor.
+AUTOPILOT_LOSSY_MAX_LOSS = 0.10
 
 
 class CpuSampler:
@@ -236,6 +245,9 @@ def main() -> int:
     p.add_argument("--keep", type=Path, help="keep the run folders here (default: a temporary folder)")
     p.add_argument("--skip-nadir-10hz", action="store_true", help="no runs with the nadir camera at 10 Hz")
     p.add_argument("--skip-static", action="store_true", help="no runs of the loiter without moving objects")
+    p.add_argument(
+        "--skip-autopilot-lossy", action="store_true", help="no runs on the autopilot's estimate over the lossy link"
+    )
     args = p.parse_args()
     if shutil.which("uav-run") is None:
         sys.stderr.write("bench_scenario: uav-run not on PATH; run inside the project environment (scripts/in_env)\n")
@@ -244,14 +256,15 @@ def main() -> int:
         sys.stderr.write("bench_scenario: --repeats must be >= 1\n")
         return 2
     parent = args.keep or Path(tempfile.mkdtemp(prefix="bench_scenario_"))
-    loiter, mower, nadir10, static = Runs(), Runs(), Runs(), Runs()
+    loiter, mower, nadir10, static, lossy = Runs(), Runs(), Runs(), Runs(), Runs()
     variants = [(loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")]
+    parent.mkdir(parents=True, exist_ok=True)
     if not args.skip_static:
-        parent.mkdir(parents=True, exist_ok=True)
         variants.append((static, static_world_scenario(parent / "loiter_static.yaml"), "loiter_static"))
     if not args.skip_nadir_10hz:
-        parent.mkdir(parents=True, exist_ok=True)
         variants.append((nadir10, nadir_10hz_scenario(parent / "loiter_nadir_10hz.yaml"), "loiter_nadir_10hz"))
+    if not args.skip_autopilot_lossy:
+        variants.append((lossy, autopilot_lossy_scenario(parent / "loiter_autopilot_lossy.yaml"), "autopilot_lossy"))
     try:
         for i in range(args.repeats):
             for runs, scenario, name in variants:
@@ -352,6 +365,25 @@ def main() -> int:
             )
             + f"; machine probe {static.probe_notes()}",
         )
+    if lossy.metrics:
+        ratio = lossy.rtf() / rtf
+        pose = [m["pose_estimate"]["error"] for m in lossy.metrics]
+        record(
+            "scenario.loiter.rtf_autopilot_lossy",
+            lossy.rtf(),
+            "x",
+            rtf,
+            target=f"ratio >= {1.0 - AUTOPILOT_LOSSY_MAX_LOSS:.2f} (loses at most {AUTOPILOT_LOSSY_MAX_LOSS:.0%})",
+            met=ratio >= 1.0 - AUTOPILOT_LOSSY_MAX_LOSS,
+            notes=f"the loiter on the autopilot's estimate (pose_source: autopilot) over the lossy_link preset (runs "
+            f"{lossy.rtfs()}); baseline: the default loiter in the same run ({loiter.rtfs()}); pose error rms "
+            + ", ".join(f"{e['position_rms_m']:.2f} m / {e['yaw_rms_deg']:.2f} deg" for e in pose)
+            + f"; map precision {lossy.mean(lambda i: float(lossy.metrics[i]['map_accuracy']['precision'])):.3f} "
+            f"(default {loiter.mean(lambda i: float(loiter.metrics[i]['map_accuracy']['precision'])):.3f}); map server "
+            f"dropped {lossy.dropped_pct():.1f} % of its frames (default {loiter.dropped_pct():.1f} %); CPU "
+            f"{lossy.cpu_per_sim_s():.3f} cpu-s/sim-s (default {cpu:.3f}), of which autopilot_odometry "
+            f"{lossy.per_node().get('autopilot_odometry', 0.0):.3f}; machine probe {lossy.probe_notes()}",
+        )
     return 0
 
 
@@ -362,6 +394,19 @@ def static_world_scenario(path: Path) -> Path:
     if "config" in world:
         world["config"] = str((LOITER.parent / world["config"]).resolve())
     scenario["actors"] = {"people": {"moving": 0}, "vehicles": {"moving": 0}}
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return path
+
+
+def autopilot_lossy_scenario(path: Path) -> Path:
+    """config/scenarios/loiter.yaml on the autopilot's estimate over the lossy_link stress preset, written to ``path``
+    (the world file and the preset made absolute so the copy can live anywhere)."""
+    scenario = yaml.safe_load(LOITER.read_text())
+    world = scenario.get("world") or {}
+    if "config" in world:
+        world["config"] = str((LOITER.parent / world["config"]).resolve())
+    scenario["pose_source"] = "autopilot"
+    scenario["stress"] = [str(REPO / "config" / "stress" / "lossy_link.yaml")]
     path.write_text(yaml.safe_dump(scenario, sort_keys=False))
     return path
 

@@ -44,7 +44,7 @@ CORE_FORBIDDEN = frozenset(
     {
         "asyncio", "concurrent", "datetime", "ftplib", "http", "multiprocessing", "os", "random", "sched", "select",
         "selectors", "shutil", "signal", "socket", "socketserver", "subprocess", "tempfile", "threading", "time",
-        "urllib", "xmlrpc",
+        "urllib", "xmlrpc", "dask", "distributed",
         "cv_bridge", "genpy", "jsbsim", "matplotlib", "mavsdk", "moderngl", "pymavlink", "rosbag", "rosbags",
         "rosgraph", "roslaunch", "rospy", "serial", "tf2_ros", "trimesh",
     }
@@ -61,7 +61,9 @@ PURE_COMMON = frozenset(
         "uav_common.frames",
         "uav_common.geo",
         "uav_common.pointcloud",
+        "uav_common.robot",
         "uav_common.rotations",
+        "uav_common.validate",
         "uav_common.voxel_keys",
     }
 )
@@ -139,7 +141,7 @@ def project_packages(repo: Path) -> list[Package]:
     autonomy = Package(
         "uav_autonomy",
         src,
-        frozenset({"uav_common", *NUMERIC, "pymavlink", *ROS_COMMON}),
+        frozenset({"uav_common", *NUMERIC, "pymavlink", *ROS_COMMON, "tf2_ros"}),
         pkg,
     )
     src, pkg = catkin("uav_perception")
@@ -163,7 +165,22 @@ def project_packages(repo: Path) -> list[Package]:
             "roslaunch": "uav-run starts `roslaunch uav_scenarios <mission>.launch`",
         },
     )
-    return [common, sitl, router, bridge, autonomy, perception, scenarios]
+    src, pkg = catkin("uav_campaigns")
+    campaigns = Package(
+        "uav_campaigns",
+        src,
+        # dask and distributed in shell/ only (CORE_FORBIDDEN); uav-run is started as a program, not imported
+        frozenset({"uav_common", "uav_scenarios", "numpy", "scipy", "yaml", "matplotlib", "distributed", "dask"}),
+        pkg,
+    )
+    src, pkg = catkin("uav_datasets")
+    datasets = Package(
+        "uav_datasets",
+        src,
+        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools"}),
+        pkg,
+    )
+    return [common, sitl, router, bridge, autonomy, perception, scenarios, campaigns, datasets]
 
 
 # ---------------------------------------------------------------------------------------------- parsing

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from sitl.errors import SitlConfigError
 from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_mapping, set_dotted
+from uav_common.validate import require, require_port
 
 __all__ = [
     "BatteryConfig",
@@ -44,15 +45,6 @@ __all__ = [
 ]
 
 
-def _require(ok: bool, message: str) -> None:
-    if not ok:
-        raise ValueError(message)
-
-
-def _finite(value: float) -> bool:
-    return math.isfinite(value)
-
-
 @dataclass(frozen=True)
 class HomeConfig:
     """Home: the point on the ground under the vehicle at start, origin of LOCAL_NED."""
@@ -63,10 +55,10 @@ class HomeConfig:
     yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        _require(-90.0 < self.lat_deg < 90.0, f"'lat_deg' must be in (-90, 90), got {self.lat_deg}")
-        _require(-180.0 <= self.lon_deg <= 180.0, f"'lon_deg' must be in [-180, 180], got {self.lon_deg}")
-        _require(-500.0 <= self.alt_amsl_m <= 9000.0, f"'alt_amsl_m' must be in [-500, 9000], got {self.alt_amsl_m}")
-        _require(_finite(self.yaw_deg), "'yaw_deg' must be finite")
+        require(-90.0 < self.lat_deg < 90.0, f"'lat_deg' must be in (-90, 90), got {self.lat_deg}")
+        require(-180.0 <= self.lon_deg <= 180.0, f"'lon_deg' must be in [-180, 180], got {self.lon_deg}")
+        require(-500.0 <= self.alt_amsl_m <= 9000.0, f"'alt_amsl_m' must be in [-500, 9000], got {self.alt_amsl_m}")
+        require(math.isfinite(self.yaw_deg), "'yaw_deg' must be finite")
 
 
 @dataclass(frozen=True)
@@ -82,12 +74,12 @@ class PhysicsConfig:
     idle_thrust: float = 0.02
 
     def __post_init__(self) -> None:
-        _require(50.0 <= self.rate_hz <= 2000.0, f"'rate_hz' must be in [50, 2000] Hz, got {self.rate_hz}")
-        _require(1 <= self.outer_loop_divider <= 50, "'outer_loop_divider' must be in [1, 50]")
-        _require(self.motor_max_voltage_v > 0.0, "'motor_max_voltage_v' must be > 0")
-        _require(1.0 <= self.thrust_curve_exponent <= 3.0, "'thrust_curve_exponent' must be in [1, 3]")
-        _require(0.0 <= self.idle_thrust < 0.3, "'idle_thrust' must be in [0, 0.3)")
-        _require(bool(self.aircraft), "'aircraft' must not be empty")
+        require(50.0 <= self.rate_hz <= 2000.0, f"'rate_hz' must be in [50, 2000] Hz, got {self.rate_hz}")
+        require(1 <= self.outer_loop_divider <= 50, "'outer_loop_divider' must be in [1, 50]")
+        require(self.motor_max_voltage_v > 0.0, "'motor_max_voltage_v' must be > 0")
+        require(1.0 <= self.thrust_curve_exponent <= 3.0, "'thrust_curve_exponent' must be in [1, 3]")
+        require(0.0 <= self.idle_thrust < 0.3, "'idle_thrust' must be in [0, 0.3)")
+        require(bool(self.aircraft), "'aircraft' must not be empty")
 
     @property
     def dt_s(self) -> float:
@@ -112,15 +104,15 @@ class TimeConfig:
 
     def __post_init__(self) -> None:
         if self.speed_factor != "max":
-            _require(
+            require(
                 isinstance(self.speed_factor, int | float) and 0.05 <= self.speed_factor <= 10000.0,
                 f"'speed_factor' must be a number in [0.05, 10000] or 'max', got {self.speed_factor!r}",
             )
-        _require(0.0 <= self.datalink_wall_floor_s <= 60.0, "'datalink_wall_floor_s' must be in [0, 60] s")
-        _require(0.0 <= self.stream_wall_floor_s <= 60.0, "'stream_wall_floor_s' must be in [0, 60] s")
-        _require(0.0 < self.max_lag_s <= 10.0, "'max_lag_s' must be in (0, 10] s")
+        require(0.0 <= self.datalink_wall_floor_s <= 60.0, "'datalink_wall_floor_s' must be in [0, 60] s")
+        require(0.0 <= self.stream_wall_floor_s <= 60.0, "'stream_wall_floor_s' must be in [0, 60] s")
+        require(0.0 < self.max_lag_s <= 10.0, "'max_lag_s' must be in (0, 10] s")
         if self.unix_epoch_s is not None:
-            _require(self.unix_epoch_s >= 0.0, "'unix_epoch_s' must be >= 0")
+            require(self.unix_epoch_s >= 0.0, "'unix_epoch_s' must be >= 0")
 
     @property
     def speed(self) -> float:
@@ -158,19 +150,19 @@ class BatteryConfig:
     avionics_power_w: float = 4.0
 
     def __post_init__(self) -> None:
-        _require(1 <= self.cells <= 14, f"'cells' must be in [1, 14], got {self.cells}")
-        _require(100.0 <= self.capacity_mah <= 100000.0, "'capacity_mah' must be in [100, 100000]")
-        _require(0.0 <= self.internal_resistance_ohm <= 1.0, "'internal_resistance_ohm' must be in [0, 1]")
-        _require(0.0 <= self.initial_soc <= 1.0, "'initial_soc' must be in [0, 1]")
-        _require(0.3 <= self.esc_efficiency <= 1.0, "'esc_efficiency' must be in [0.3, 1]")
-        _require(0.0 <= self.avionics_power_w <= 500.0, "'avionics_power_w' must be in [0, 500]")
+        require(1 <= self.cells <= 14, f"'cells' must be in [1, 14], got {self.cells}")
+        require(100.0 <= self.capacity_mah <= 100000.0, "'capacity_mah' must be in [100, 100000]")
+        require(0.0 <= self.internal_resistance_ohm <= 1.0, "'internal_resistance_ohm' must be in [0, 1]")
+        require(0.0 <= self.initial_soc <= 1.0, "'initial_soc' must be in [0, 1]")
+        require(0.3 <= self.esc_efficiency <= 1.0, "'esc_efficiency' must be in [0.3, 1]")
+        require(0.0 <= self.avionics_power_w <= 500.0, "'avionics_power_w' must be in [0, 500]")
         socs = [p[0] for p in self.ocv_curve]
         volts = [p[1] for p in self.ocv_curve]
-        _require(len(self.ocv_curve) >= 2, "'ocv_curve' needs at least two [soc, volts] points")
-        _require(socs[0] == 0.0 and socs[-1] == 1.0, "'ocv_curve' must span soc 0.0 to 1.0")
-        _require(all(a < b for a, b in itertools.pairwise(socs)), "'ocv_curve' soc must increase strictly")
-        _require(all(a <= b for a, b in itertools.pairwise(volts)), "'ocv_curve' volts must not decrease")
-        _require(all(2.0 <= v <= 5.0 for v in volts), "'ocv_curve' cell volts must be in [2, 5]")
+        require(len(self.ocv_curve) >= 2, "'ocv_curve' needs at least two [soc, volts] points")
+        require(socs[0] == 0.0 and socs[-1] == 1.0, "'ocv_curve' must span soc 0.0 to 1.0")
+        require(all(a < b for a, b in itertools.pairwise(socs)), "'ocv_curve' soc must increase strictly")
+        require(all(a <= b for a, b in itertools.pairwise(volts)), "'ocv_curve' volts must not decrease")
+        require(all(2.0 <= v <= 5.0 for v in volts), "'ocv_curve' cell volts must be in [2, 5]")
 
 
 class FailsafeAction(enum.Enum):
@@ -199,16 +191,16 @@ class FailsafeConfig:
     geofence_max_altitude_m: float = 120.0  # GF_MAX_VER_DIST, 0 = off
 
     def __post_init__(self) -> None:
-        _require(
+        require(
             0.0 <= self.battery_critical_remaining < self.battery_low_remaining <= 0.5,
             ("need 0 <= battery_critical_remaining < battery_low_remaining <= 0.5"),
         )
-        _require(0.5 <= self.datalink_loss_timeout_s <= 300.0, "'datalink_loss_timeout_s' must be in [0.5, 300]")
-        _require(0.1 <= self.offboard_loss_timeout_s <= 60.0, "'offboard_loss_timeout_s' must be in [0.1, 60]")
-        _require(self.offboard_loss_action is not FailsafeAction.DISABLED, "'offboard_loss_action' cannot be disabled")
-        _require(self.offboard_loss_action is not FailsafeAction.WARN, "'offboard_loss_action' cannot be warn")
-        _require(0.0 <= self.geofence_radius_m <= 100000.0, "'geofence_radius_m' must be in [0, 100000]")
-        _require(0.0 <= self.geofence_max_altitude_m <= 10000.0, "'geofence_max_altitude_m' must be in [0, 10000]")
+        require(0.5 <= self.datalink_loss_timeout_s <= 300.0, "'datalink_loss_timeout_s' must be in [0.5, 300]")
+        require(0.1 <= self.offboard_loss_timeout_s <= 60.0, "'offboard_loss_timeout_s' must be in [0.1, 60]")
+        require(self.offboard_loss_action is not FailsafeAction.DISABLED, "'offboard_loss_action' cannot be disabled")
+        require(self.offboard_loss_action is not FailsafeAction.WARN, "'offboard_loss_action' cannot be warn")
+        require(0.0 <= self.geofence_radius_m <= 100000.0, "'geofence_radius_m' must be in [0, 100000]")
+        require(0.0 <= self.geofence_max_altitude_m <= 10000.0, "'geofence_max_altitude_m' must be in [0, 10000]")
 
 
 @dataclass(frozen=True)
@@ -226,11 +218,6 @@ class StreamProfile(enum.Enum):
     ONBOARD = "onboard"
 
 
-def _check_port(port: int, name: str, *, allow_zero: bool = False) -> None:
-    low = 0 if allow_zero else 1
-    _require(low <= port <= 65535, f"'{name}' must be a port in [{low}, 65535], got {port}")
-
-
 @dataclass(frozen=True)
 class UdpLinkConfig:
     """A UDP MAVLink link: bind ``local_port``, send to ``remote`` and to peers that talk to us."""
@@ -244,8 +231,8 @@ class UdpLinkConfig:
     signing_key_file: Path | None = None
 
     def __post_init__(self) -> None:
-        _check_port(self.remote_port, "remote_port")
-        _check_port(self.local_port, "local_port", allow_zero=True)
+        require_port("remote_port", self.remote_port)
+        require_port("local_port", self.local_port, allow_zero=True)
 
 
 @dataclass(frozen=True)
@@ -260,8 +247,8 @@ class TcpLinkConfig:
     max_clients: int = 8
 
     def __post_init__(self) -> None:
-        _check_port(self.port, "port", allow_zero=True)
-        _require(1 <= self.max_clients <= 64, "'max_clients' must be in [1, 64]")
+        require_port("port", self.port, allow_zero=True)
+        require(1 <= self.max_clients <= 64, "'max_clients' must be in [1, 64]")
 
 
 def _api_link() -> UdpLinkConfig:
@@ -289,10 +276,10 @@ class SimLinkConfig:
     max_steps_per_grant: int = 250000
 
     def __post_init__(self) -> None:
-        _check_port(self.port, "port", allow_zero=True)
-        _require(1.0 <= self.rate_hz <= 1000.0, "'rate_hz' must be in [1, 1000]")
-        _require(0.5 <= self.peer_timeout_s <= 600.0, "'peer_timeout_s' must be in [0.5, 600]")
-        _require(1 <= self.max_steps_per_grant <= 10_000_000, "'max_steps_per_grant' must be in [1, 1e7]")
+        require_port("port", self.port, allow_zero=True)
+        require(1.0 <= self.rate_hz <= 1000.0, "'rate_hz' must be in [1, 1000]")
+        require(0.5 <= self.peer_timeout_s <= 600.0, "'peer_timeout_s' must be in [0.5, 600]")
+        require(1 <= self.max_steps_per_grant <= 10_000_000, "'max_steps_per_grant' must be in [1, 1e7]")
 
 
 class EstimatorMode(enum.Enum):
@@ -329,10 +316,10 @@ class EstimatorConfig:
             "dropout_drift_mps",
         ):
             value = getattr(self, name)
-            _require(0.0 <= value <= 1000.0, f"'{name}' must be in [0, 1000], got {value}")
-        _require(0.01 <= self.noise_correlation_s <= 1000.0, "'noise_correlation_s' must be in [0.01, 1000]")
-        _require(0.1 <= self.gps_dropout_duration_s <= 3600.0, "'gps_dropout_duration_s' must be in [0.1, 3600]")
-        _require(0 <= self.seed < 2**63, "'seed' must be a non-negative integer")
+            require(0.0 <= value <= 1000.0, f"'{name}' must be in [0, 1000], got {value}")
+        require(0.01 <= self.noise_correlation_s <= 1000.0, "'noise_correlation_s' must be in [0.01, 1000]")
+        require(0.1 <= self.gps_dropout_duration_s <= 3600.0, "'gps_dropout_duration_s' must be in [0.1, 3600]")
+        require(0 <= self.seed < 2**63, "'seed' must be a non-negative integer")
 
 
 @dataclass(frozen=True)
@@ -345,10 +332,10 @@ class MavlinkConfig:
     stats_period_s: float = 10.0
 
     def __post_init__(self) -> None:
-        _require(1 <= self.system_id <= 254, "'system_id' must be in [1, 254]")
-        _require(1 <= self.component_id <= 254, "'component_id' must be in [1, 254]")
-        _require(0.1 <= self.paused_heartbeat_period_s <= 10.0, "'paused_heartbeat_period_s' must be in [0.1, 10]")
-        _require(0.0 <= self.stats_period_s <= 3600.0, "'stats_period_s' must be in [0, 3600] (0 = off)")
+        require(1 <= self.system_id <= 254, "'system_id' must be in [1, 254]")
+        require(1 <= self.component_id <= 254, "'component_id' must be in [1, 254]")
+        require(0.1 <= self.paused_heartbeat_period_s <= 10.0, "'paused_heartbeat_period_s' must be in [0.1, 10]")
+        require(0.0 <= self.stats_period_s <= 3600.0, "'stats_period_s' must be in [0, 3600] (0 = off)")
 
 
 @dataclass(frozen=True)

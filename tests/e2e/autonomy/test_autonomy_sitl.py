@@ -12,6 +12,9 @@ link losses against wall-time floors as well (docs/sitl.md), so nothing times ou
 
 Every assertion on the vehicle uses the SITL's own telemetry on the GCS link (position, mode, armed,
 landed state, the echoed active setpoint), never what the controller believes.
+
+A third test puts the real ``uav-mavlink-router`` between the relay and the SITL (its TCP link), with a lossy
+downlink on the controller's endpoint (the telemetry fades, as a radio at the edge of its range does).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from e2e.autonomy.autonomy_e2e_rig import (
     wait_for,
 )
 from e2e.sitl.harness import SitlPorts, run_sitl
-from helpers.procs import REPO, Proc, free_port, free_udp_port, roscore
+from helpers.procs import REPO, Proc, free_port, free_udp_port, roscore, wait_for_port
 
 pytestmark = pytest.mark.slow
 
@@ -74,21 +77,38 @@ class Rig:
 
 
 @contextmanager
-def rig(name: str, tmp_path: Path) -> Iterator[Rig]:
+def rig(name: str, tmp_path: Path, *, router_link: str = "") -> Iterator[Rig]:
+    """The rig; with ``router_link`` (router configuration keys) the controller's MAVLink goes through the relay
+    and then ``uav-mavlink-router`` (its ``controller`` endpoint, with those keys) to the SITL's TCP link."""
     with ExitStack() as stack:
         env = stack.enter_context(roscore(f"roscore_{name}"))
         controller_port = free_udp_port()
         relay = MavRelay(controller_port)
         stack.callback(relay.close)
-        ports = SitlPorts(
-            free_udp_port(), free_udp_port(), relay.sitl_port, free_udp_port(), free_port(), free_udp_port()
-        )
+        api_port = free_udp_port() if router_link else relay.sitl_port
+        ports = SitlPorts(free_udp_port(), free_udp_port(), api_port, free_udp_port(), free_port(), free_udp_port())
+        links = ["--no-sim-link"] if router_link else ["--no-tcp", "--no-sim-link"]
         sitl = stack.enter_context(
-            run_sitl(
-                f"sitl_{name}", tmp_path, speed=SPEED, ports=ports,
-                extra=["--no-tcp", "--no-sim-link", "--set", SITL_PARAMS],
+            run_sitl(f"sitl_{name}", tmp_path, speed=SPEED, ports=ports, extra=[*links, "--set", SITL_PARAMS])
+        )
+        procs = [sitl.proc]
+        if router_link:
+            conf = tmp_path / "router.conf"
+            conf.write_text(
+                f"[General]\nLog = {tmp_path / 'router'}\nStatsInterval = 1\n"
+                f"[TcpEndpoint sitl]\nAddress = 127.0.0.1\nPort = {ports.tcp}\n"
+                f"[UdpEndpoint controller]\nMode = Normal\nAddress = 127.0.0.1\nPort = {relay.sitl_port}\n"
+                f"{router_link}\n"
             )
-        )  # fmt: skip
+            (tmp_path / "conf.d").mkdir(exist_ok=True)
+            tcp_server = free_port()
+            router = Proc(
+                f"router_{name}",
+                ["uav-mavlink-router", "-c", str(conf), "-d", str(tmp_path / "conf.d"), "-t", str(tcp_server)],
+            )
+            stack.callback(router.stop)
+            wait_for_port(tcp_server, timeout_s=20.0, proc=router)
+            procs.append(router)
         monitor = SitlMonitor(ports.gcs)
         stack.callback(monitor.close)
         launch = Proc(
@@ -109,7 +129,7 @@ def rig(name: str, tmp_path: Path) -> Iterator[Rig]:
             env=env,
         )
         stack.callback(client_proc.stop)
-        r = Rig(monitor, relay, client, [sitl.proc, launch, client_proc])
+        r = Rig(monitor, relay, client, [*procs, launch, client_proc])
         wait_for("the ROS client", lambda: client.ready, bool, 90.0, r.check)
         wait_for("the controller's MAVLink link", r.state, lambda s: bool(s.get("link_ok")), 60.0, r.check)
         try:
@@ -268,3 +288,48 @@ def test_link_drop_and_autopilot_failsafe(tmp_path: Path) -> None:
         late = r.relay.setpoints_since(t_yield + 0.3)
         assert late == [], f"{len(late)} setpoints sent after yielding to the failsafe"
         assert math.hypot(*(r.position() or (99.0, 99.0, 0.0))[:2]) < 3.0
+
+
+#: The controller's downlink (telemetry) through the router fades: 20 % of the frames lost, in bursts of 1500
+#: frames on average (~1.5 s at the ~1000 frames a second the SITL's onboard streams send at 3x).
+FADING_DOWNLINK = "LossPercent = 20\nLossBurst = 1500\nLinkDirection = out\nLinkSeed = 2"
+
+
+def test_fading_telemetry_through_the_router_is_detected_and_the_autopilot_holds(tmp_path: Path) -> None:
+    """Stale telemetry is detected (the controller stops its setpoints at once and says why) and the autopilot's
+    offboard-loss failsafe (COM_OF_LOSS_T) holds the vehicle, as a real PX4 would."""
+    with rig("autonomy_lossy", tmp_path, router_link=FADING_DOWNLINK) as r:
+        for attempt in range(6):  # a fade during the takeoff makes the controller give up: ask again
+            reply = r.client.set_state("TAKEOFF" if not r.monitor.view().armed else "HOLD")
+            try:
+                wait_for("HOLD", r.state, lambda s: s.get("state") == "HOLD", 30.0, r.check)
+                break
+            except AssertionError:
+                print(f"takeoff attempt {attempt} interrupted: {reply}, {r.state()}")
+        wait_for("airborne", r.position, lambda p: p is not None and p[2] > 5.0, 30.0, r.check)
+        # hold in the air until a fade: the controller must notice the telemetry going stale
+        t0 = time.monotonic()
+        stale = ("position telemetry stale", "MAVLink link lost")
+        wait_for(
+            "the controller noticing stale telemetry",
+            lambda: r.client.events_since(t0),
+            lambda events: any(any(s in e for s in stale) for e in events),
+            90.0,
+            r.check,
+        )
+        t_stale = time.monotonic()
+        assert r.state().get("state") == "IDLE", r.state()
+        # no setpoint after it noticed (the router forwards what it sends: the relay sees everything)
+        time.sleep(1.5)
+        late = r.relay.setpoints_since(t_stale + 0.3)
+        assert late == [], f"{len(late)} setpoints sent on stale telemetry"
+        # the autopilot, no longer receiving setpoints, holds by itself (offboard loss, COM_OF_LOSS_T)
+        wait_for("AUTO.LOITER (offboard loss)", r.monitor.view, lambda v: v.custom_mode == PX4_LOITER, 15.0, r.check)
+        assert any("Offboard setpoints lost" in t for t in r.monitor.view().texts), r.monitor.view().texts[-5:]
+        # the router made those losses, downlink only
+        import json  # noqa: PLC0415
+
+        stats = json.loads((tmp_path / "router" / "router-stats.json").read_text())
+        link = next(e for e in stats["endpoints"] if e["name"] == "controller")["link"]
+        assert set(link) == {"out"}, link
+        assert link["out"]["dropped"] > 1000, link

@@ -19,6 +19,19 @@ CASES = [
     ("uav_autonomy", "goal_selector", ["_odom:=/odom"], "unknown private parameter(s) ~odom"),
     ("uav_autonomy", "path_planner", ["_config:=42"], "key 'config' expected a string, got int 42"),
     ("uav_autonomy", "waypoint_controller", ["_connection:=udpin:0.0.0.0:1"], "~connection"),
+    ("uav_autonomy", "autopilot_odometry", ["_odom:=/odom"], "unknown private parameter(s) ~odom"),
+    (
+        "uav_autonomy",
+        "autopilot_odometry",
+        ["__name:=autopilot_odometry_b", "_overrides:={time_sync: gps}"],  # its own name: the master keeps ~odom
+        "time_sync must be timesync (a real autopilot) or shared (the SITL), got 'gps'",
+    ),
+    (
+        "uav_autonomy",
+        "robot_description",
+        ["_file:=/nonexistent/robot.yaml"],
+        "/nonexistent/robot.yaml: config file not found",
+    ),
     ("uav_perception", "depth_estimator", ["_pose_source:=gps"], "key 'pose_source' expected one of 'tf', 'odom'"),
     ("uav_perception", "depth_evaluator", ["_camera_name:=nadir"], "unknown private parameter(s) ~camera_name"),
     ("uav_scenarios", "tracker", ["_gate:=3.0"], "this node takes: ~camera, ~detections, ~gate_m"),
@@ -39,7 +52,9 @@ def master() -> Iterator[dict[str, str]]:
         yield env
 
 
-@pytest.mark.parametrize(("package", "node", "args", "message"), CASES, ids=[c[1] for c in CASES])
+@pytest.mark.parametrize(
+    ("package", "node", "args", "message"), CASES, ids=[f"{c[1]}-{k}" for k, c in enumerate(CASES)]
+)
 def test_a_bad_private_parameter_stops_the_node_with_exit_code_2(
     master: dict[str, str], package: str, node: str, args: list[str], message: str
 ) -> None:

@@ -6,6 +6,12 @@ BATTERY_STATUS; MAV_CMD_DO_SET_MODE and ARM with COMMAND_ACKs; OFFBOARD is refus
 unless setpoints arrived at > 2 Hz over the last 0.5 s; offboard loss after 0.5 s
 without setpoints falls back to AUTO.LOITER; AUTO.RTL flies home and lands, AUTO.LAND
 lands, and it disarms on the ground. Kinematics: straight-line at ``speed_mps``.
+
+With ``estimate_port`` it also serves a second client (the autopilot odometry node) as PX4's onboard
+link does: ODOMETRY (with a covariance), LOCAL_POSITION_NED, ATTITUDE_QUATERNION and HEARTBEAT at
+50 Hz, TIMESYNC answers and MAV_CMD_SET_MESSAGE_INTERVAL acknowledgements, all stamped on its own
+clock (``boot_offset_s`` seconds behind the test's). ``estimate_mode`` makes that estimate ``nan``,
+``paused`` (nothing sent) or ``no_odometry`` (only the LOCAL_POSITION_NED + ATTITUDE_QUATERNION fallback).
 """
 
 from __future__ import annotations
@@ -44,8 +50,19 @@ class Setpoint:
 
 
 class FakePx4:
-    def __init__(self, port: int, *, speed_mps: float = 10.0) -> None:
+    def __init__(
+        self, port: int, *, speed_mps: float = 10.0, estimate_port: int = 0, boot_offset_s: float = 0.0
+    ) -> None:
         self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
+        self.est_conn = (
+            mavutil.mavlink_connection(f"udpout:127.0.0.1:{estimate_port}", source_system=1, source_component=1)
+            if estimate_port
+            else None
+        )
+        self.boot_offset_s = boot_offset_s
+        self.estimate_mode = "ok"
+        self.timesync_answers = 0
+        self.interval_requests: list[tuple[float, float]] = []
         self.speed_mps = speed_mps
         self.mode = "AUTO.LOITER"
         self.armed = False
@@ -69,6 +86,8 @@ class FakePx4:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self.conn.close()
+        if self.est_conn is not None:
+            self.est_conn.close()
 
     def force_mode(self, name: str) -> None:
         with self.lock:
@@ -97,6 +116,8 @@ class FakePx4:
                     pass  # the link is down: drop what arrives (counting nothing)
             with self.lock:
                 self._physics(now, dt)
+            if self.est_conn is not None:
+                self._serve_estimate(now)
             if not self.paused:
                 if now - last_hb >= 0.5:
                     last_hb = now
@@ -180,3 +201,40 @@ class FakePx4:
         self.conn.mav.extended_sys_state_send(MAV.MAV_VTOL_STATE_UNDEFINED, landed)
         cells = [4000, 4000, 4000, 4000] + [0xFFFF] * 6
         self.conn.mav.battery_status_send(0, 0, 0, 2500, cells, 1200, 350, -1, 87)
+
+    # ------------------------------------------------------------ the onboard estimate link
+    def _serve_estimate(self, now: float) -> None:
+        conn = self.est_conn
+        assert conn is not None
+        boot_s = now - self.boot_offset_s  # the autopilot's clock: time since its boot
+        while (msg := conn.recv_match(blocking=False)) is not None:
+            mtype = msg.get_type()
+            if mtype == "TIMESYNC" and msg.tc1 == 0:
+                self.timesync_answers += 1
+                conn.mav.timesync_send(int(boot_s * 1e9), msg.ts1)
+            elif mtype == "COMMAND_LONG" and msg.command == MAV.MAV_CMD_SET_MESSAGE_INTERVAL:
+                self.interval_requests.append((msg.param1, msg.param2))
+                conn.mav.command_ack_send(msg.command, MAV.MAV_RESULT_ACCEPTED, 0, 0,
+                                          msg.get_srcSystem(), msg.get_srcComponent())  # fmt: skip
+        if self.estimate_mode == "paused":
+            return
+        with self.lock:
+            n, e, d = self.pos
+        base = MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        conn.mav.heartbeat_send(MAV.MAV_TYPE_QUADROTOR, MAV.MAV_AUTOPILOT_PX4, base, custom_mode(self.mode),
+                                MAV.MAV_STATE_ACTIVE)  # fmt: skip
+        if self.estimate_mode == "nan":
+            n = e = d = math.nan
+        ms = int(boot_s * 1000) & 0xFFFFFFFF
+        # heading east (NED yaw 90 deg): q = [cos 45, 0, 0, sin 45]
+        q = [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]
+        conn.mav.attitude_quaternion_send(ms, *q, 0.0, 0.0, 0.0)
+        conn.mav.local_position_ned_send(ms, n, e, d, 0.0, 0.0, 0.0)
+        if self.estimate_mode != "no_odometry":
+            # the upper triangle row by row: x, y, z variances 0.25 (N), 1.0 (E), 2.25 (D); small attitude terms
+            cov = [0.0] * 21
+            for k, v in zip((0, 6, 11, 15, 18, 20), (0.25, 1.0, 2.25, 1e-4, 1e-4, 1e-4), strict=True):
+                cov[k] = v
+            conn.mav.odometry_send(int(boot_s * 1e6), MAV.MAV_FRAME_LOCAL_NED, MAV.MAV_FRAME_BODY_FRD, n, e, d, q,
+                                   0.0, 0.0, 0.0, 0.0, 0.0, 0.0, cov, [math.nan] + [0.0] * 20, 0,
+                                   MAV.MAV_ESTIMATOR_TYPE_GPS, 100)  # fmt: skip

@@ -17,6 +17,7 @@ import pytest
 from uav_autonomy.core.controller import (
     ControllerConfig,
     ControllerState,
+    PoseCheck,
     RequestArm,
     RequestMode,
     RequestTakeoff,
@@ -116,6 +117,8 @@ class Rig:
         self.wall_s: float | None = None if wall_per_tick_s is None else 1000.0
         self.heard_wall_s: float | None = None
         self.log: list[tuple[float, object]] = []
+        self.pose: PoseCheck | None = None  # the watched pose estimate's state (None: not watched)
+        self.position_invalid = ""  # the autopilot's LOCAL_POSITION_NED turned NaN
 
     def tick(self) -> list[object]:
         self.now = round(self.now + DT, 6)
@@ -127,7 +130,9 @@ class Rig:
                 self.heard_wall_s = self.wall_s
             wall_position = self.heard_wall_s if telemetry.position_s is not None else None
             telemetry = replace(telemetry, heartbeat_wall_s=self.heard_wall_s, position_wall_s=wall_position)
-        actions = self.ctl.step(self.now, telemetry, self.wall_s)
+        if self.position_invalid:
+            telemetry = replace(telemetry, position_invalid=self.position_invalid)
+        actions = self.ctl.step(self.now, telemetry, self.wall_s, self.pose)
         self.log.extend((self.now, a) for a in actions)
         self.ap.handle(self.now, actions)
         return actions
@@ -482,3 +487,63 @@ def test_controller_config_validation() -> None:
         from_mapping(ControllerConfig, {"wall_floor_s": -1.0}, source="t")
     with pytest.raises(ConfigError, match="unknown key"):
         from_mapping(ControllerConfig, {"setpoint_hz": 20.0}, source="t")
+
+
+@pytest.mark.parametrize(
+    ("what", "reason"),
+    [("stale", "no fresh estimate for 1.2 s (timeout 1 s)"), ("nan", "a message with NaN/inf at 12.00 s")],
+)
+def test_a_stale_or_nan_pose_stops_commanding_and_says_so(what: str, reason: str) -> None:
+    """The pose the planner and the map use goes bad in flight: no more setpoints, the autopilot is asked to
+    hold, the controller says why, and it refuses to fly again until the pose is fit."""
+    rig = Rig()
+    rig.pose = PoseCheck(True, source="pose estimate on /uav/autopilot/odom")
+    rig.flying_east()
+    assert rig.ctl.state is ControllerState.AUTONOMOUS
+    rig.pose = PoseCheck(False, reason, "pose estimate on /uav/autopilot/odom")
+    actions = rig.tick()
+    assert not any(isinstance(a, SendSetpoint) for a in actions)
+    assert RequestMode(FlightMode.AUTO_LOITER) in actions
+    status = rig.ctl.status()
+    assert status.state is ControllerState.IDLE
+    assert (
+        f"pose estimate on /uav/autopilot/odom cannot be flown on ({reason}): stopped commanding" in status.last_event
+    )
+    assert rig.ap.mode is FlightMode.AUTO_LOITER  # the autopilot holds on its own
+    n = len(rig.log)
+    rig.run(2.0)
+    assert len(rig.log) == n  # silence: never a setpoint on the bad pose
+    with pytest.raises(
+        InvalidTransitionError, match=r"cannot enter AUTONOMOUS: the pose estimate .* cannot be flown on"
+    ):
+        rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)
+    rig.pose = PoseCheck(True, source="pose estimate on /uav/autopilot/odom")
+    rig.tick()
+    rig.ctl.request(ControllerState.AUTONOMOUS, rig.now)  # fit again: it may fly
+    rig.run(3.0)
+    assert rig.ctl.state is ControllerState.AUTONOMOUS
+    assert rig.ap.mode is FlightMode.OFFBOARD
+
+
+def test_a_nan_autopilot_position_stops_commanding_at_once() -> None:
+    rig = Rig()
+    rig.flying_east()
+    rig.position_invalid = "LOCAL_POSITION_NED with non-finite position [nan, nan, nan]"
+    actions = rig.tick()
+    assert not any(isinstance(a, SendSetpoint) for a in actions)
+    assert RequestMode(FlightMode.AUTO_LOITER) in actions
+    assert rig.ctl.state is ControllerState.IDLE
+    assert (
+        "the autopilot's position estimate is invalid (LOCAL_POSITION_NED with non-finite"
+        in rig.ctl.status().last_event
+    )
+    with pytest.raises(InvalidTransitionError, match="position estimate is invalid"):
+        rig.ctl.request(ControllerState.HOLD, rig.now)
+
+
+def test_the_takeoff_waits_for_a_pose_estimate() -> None:
+    rig = Rig()
+    rig.pose = PoseCheck(False, "no valid estimate yet", "pose estimate on /uav/autopilot/odom")
+    rig.run(0.2)
+    with pytest.raises(InvalidTransitionError, match="no valid estimate yet"):
+        rig.ctl.request(ControllerState.TAKEOFF, rig.now)

@@ -11,13 +11,16 @@ from helpers.paths import CONFIG
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_common.config import ConfigError, from_mapping, load_config
+from uav_common.config import ConfigError, from_mapping, load_config, load_yaml_mapping
 from uav_common.geo import GeoPoint, LocalProjection
-from uav_sim_bridge.config import SimBridgeConfig, resolve_world_path
+from uav_common.robot import CameraMount, RobotDescription, load_robot_description
+from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras, resolve_world_path
+from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.schedule import LockstepConfig, RateSchedule
 from uav_sim_bridge.core.sensor_noise import DepthNoiseConfig, PoseNoise, PoseNoiseConfig, degrade_depth
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.vehicle_state import home_from_fix, state_from_odometry
+from uav_sim_bridge.errors import SimBridgeConfigError
 
 
 def test_rate_schedule_fires_on_the_sim_time_grid() -> None:
@@ -119,7 +122,6 @@ def test_pose_noise_is_bounded_and_reproducible() -> None:
 def test_shipped_config_loads() -> None:
     cfg = load_config(SimBridgeConfig, CONFIG / "sim_bridge.yaml")
     assert set(cfg.cameras) == {"nadir", "forward"}
-    assert cfg.cameras["nadir"].mount.rpy_deg == (0.0, 90.0, 0.0)
     assert cfg.lockstep.role == "master"
     assert cfg.detections.max_range_m == 100.0
     assert cfg.world_yaml() == CONFIG / "worlds" / "default.yaml"
@@ -151,3 +153,36 @@ def test_world_paths(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert resolve_world_path("worlds/default.yaml").resolve() == CONFIG / "worlds/default.yaml"
     assert resolve_world_path(str(tmp_path / "w.yaml")) == tmp_path / "w.yaml"
     assert LockstepConfig().steps_per_grant == 5
+
+
+def test_camera_mounts_come_from_the_robot_description() -> None:
+    """The bridge renders each camera from config/robot.yaml's mount: the file the robot_description node
+    publishes the static transforms from (one source for the simulator and a real airframe)."""
+    robot = load_robot_description(CONFIG / "robot.yaml")
+    data = load_yaml_mapping(CONFIG / "sim_bridge.yaml")
+    data["cameras"] = mounted_cameras(data["cameras"], robot, source="sim_bridge.yaml")
+    cfg = from_mapping(SimBridgeConfig, data, source="test")
+    assert cfg.cameras["nadir"].mount.rpy_deg == (0.0, 90.0, 0.0)
+    assert cfg.cameras["forward"].mount.xyz_m == (0.12, 0.0, -0.04)
+    # the transforms the robot_description node publishes are the ones the bridge renders from
+    by_child = {t.child: t for t in robot.static_transforms()}
+    for name, cam in cfg.cameras.items():
+        model = CameraModel.from_config(name, cam)
+        t = by_child[f"camera_{name}"]
+        assert t.parent == "base_link"
+        np.testing.assert_allclose(t.translation_m, model.t_base_camera.translation_m, atol=1e-12)
+        q_base_optical = RigidTransform.from_quat(t.q_wxyz, t.translation_m) @ RigidTransform.from_quat(
+            by_child[f"camera_{name}_optical"].q_wxyz, (0.0, 0.0, 0.0)
+        )
+        np.testing.assert_allclose(q_base_optical.rotation, model.t_base_optical.rotation, atol=1e-12)
+    # no config names: the default cameras, mounted from the description
+    defaults = mounted_cameras(None, robot, source="x")
+    assert defaults["nadir"]["mount"]["rpy_deg"] == [0.0, 90.0, 0.0]
+
+
+def test_a_mount_in_the_bridge_config_or_a_camera_without_one_is_an_error() -> None:
+    robot = RobotDescription(cameras={"nadir": CameraMount((0.0, 0.0, -0.1), (0.0, 90.0, 0.0))})
+    with pytest.raises(SimBridgeConfigError, match=r"cameras.nadir.mount: camera extrinsics live in the robot"):
+        mounted_cameras({"nadir": {"hfov_deg": 90, "mount": {"rpy_deg": [0, 45, 0]}}}, robot, source="b.yaml")
+    with pytest.raises(SimBridgeConfigError, match=r"camera 'rear' has no mount.*cameras: nadir"):
+        mounted_cameras({"rear": {"hfov_deg": 90}}, robot, source="b.yaml")

@@ -142,3 +142,45 @@ def test_classes_and_minimum_pixels() -> None:
     assert visible_candidates(ids, pose, objs, DetectionConfig()) == [7]
     with pytest.raises(ValueError, match="unknown object class"):
         DetectionConfig(classes=("dragon",))
+
+
+def test_unoccluded_pixels_count_each_pixel_once(scene: tuple[World, Renderer]) -> None:
+    """Drawn alone, a person covers exactly the pixels it covers in the frame when nothing is in front, from any
+    view: seen from above its head overlaps its torso and legs, and those pixels count once, not three times."""
+    world, renderer = scene
+    person, *others = world.objects_of_class(ObjectClass.PERSON)
+    for k, o in enumerate(others):
+        renderer.set_object_pose(o.instance_id, ObjectPose((80.0 + 5 * k, 80.0, 0.0)))
+    renderer.set_object_pose(person.instance_id, ObjectPose((0.0, 0.0, 0.0), 0.3))
+    cam = CameraModel.simple(320, 240, 60.0)
+    for eye in ([0.0, 0.0, 15.0], [0.0, -10.0, 8.0], [3.0, -6.0, 2.0], [5.0, 5.0, 30.0], [0.0, -20.0, 1.0]):
+        pose = look_at(eye, [0.0, 0.0, 0.8])
+        visible = int((renderer.render(cam, pose).instance_id == person.instance_id).sum())
+        assert visible > 20
+        assert renderer.unoccluded_pixel_counts(cam, pose, [person.instance_id]) == {person.instance_id: visible}
+
+
+def test_unoccluded_pixels_of_static_objects(small_world: World, small_renderer: Renderer) -> None:
+    """Buildings and trees can be drawn alone too; a building with nothing in front covers what it covers alone."""
+    cam = CameraModel.simple(320, 240, 50.0)
+    exact = 0
+    buildings = small_world.objects_of_class(ObjectClass.BUILDING)
+    for b in buildings:
+        c = b.center_m
+        pose = look_at(c + np.array([0.0, 0.0, 60.0]), c)
+        ids = small_renderer.render(cam, pose).instance_id
+        visible = int((ids == b.instance_id).sum())
+        alone = small_renderer.unoccluded_pixel_counts(cam, pose, [b.instance_id])[b.instance_id]
+        assert alone >= visible > 0
+        rows, cols = np.nonzero(ids == b.instance_id)
+        around = ids[max(0, rows.min() - 2) : rows.max() + 3, max(0, cols.min() - 2) : cols.max() + 3]
+        cls = small_world.instance_class[around]
+        if not np.isin(cls, [ObjectClass.TREE, ObjectClass.PERSON, ObjectClass.VEHICLE]).any():
+            exact += 1
+            assert alone == visible, b.name
+    assert exact >= len(buildings) // 3
+    tree = small_world.objects_of_class(ObjectClass.TREE)[0]
+    pose = look_at(tree.center_m + np.array([0.0, -30.0, 20.0]), tree.center_m)
+    assert small_renderer.unoccluded_pixel_counts(cam, pose, [tree.instance_id])[tree.instance_id] > 0
+    with pytest.raises(KeyError, match="drawn alone"):
+        small_renderer.unoccluded_pixel_counts(cam, pose, [1])  # the terrain

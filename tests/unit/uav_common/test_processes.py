@@ -10,7 +10,14 @@ from pathlib import Path
 import pytest
 
 from uav_common.errors import ResourceError
-from uav_common.shell.processes import LoggedProcess, free_port, free_udp_port, stop_process_group, wait_for_port
+from uav_common.shell.processes import (
+    LoggedProcess,
+    descendants,
+    free_port,
+    free_udp_port,
+    stop_process_group,
+    wait_for_port,
+)
 
 # A leader that exits on SIGINT (as roslaunch does) and a child in its group that ignores SIGINT (as
 # `rosbag play --wait-for-subscribers` does while it waits).
@@ -91,3 +98,52 @@ def test_wait_for_port_sees_a_listener_and_reports_a_dead_process(tmp_path: Path
     dead.wait(5.0)
     with pytest.raises(ResourceError, match=r"dead exited with 0 before opening port \d+:\nbye"):
         wait_for_port(free_port(), timeout_s=5.0, proc=dead)
+
+
+# roslaunch starts the master and every node with setsid: out of reach of a signal to roslaunch's group.
+ROSLAUNCH_LIKE = """
+import signal, subprocess, sys, time
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(300)"], start_new_session=True)
+print(child.pid, flush=True)
+signal.signal(signal.SIGINT, signal.SIG_IGN)   # a leader that never shuts its nodes down
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+time.sleep(300)
+"""
+
+
+def test_what_the_leader_started_in_its_own_session_is_stopped_too(tmp_path: Path) -> None:
+    leader = LoggedProcess("launch", [sys.executable, "-c", ROSLAUNCH_LIKE], log_path=tmp_path / "launch.log")
+    deadline = time.monotonic() + 10.0
+    while not leader.log_text().strip() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    node = int(leader.log_text().split()[0])
+    assert node in descendants(leader.pid)
+    assert leader.stop(0.5) == -9
+    assert _gone(node), "a node in its own session outlived its killed launcher"
+
+
+PARENT = """
+import signal, sys, time
+sys.path[:0] = {paths!r}
+from pathlib import Path
+from uav_common.shell.processes import LoggedProcess
+child = LoggedProcess("child", [sys.executable, "-c", "import time; print('up', flush=True); time.sleep(300)"],
+                      log_path=Path({log!r}), parent_death_signal=signal.SIGINT)
+print(child.pid, flush=True)
+time.sleep(300)
+"""
+
+
+def test_a_child_told_so_stops_when_its_parent_is_killed(tmp_path: Path) -> None:
+    """uav-run starts roslaunch this way: a killed uav-run (or campaign worker) never leaves its run behind."""
+    code = PARENT.format(paths=sys.path, log=str(tmp_path / "child.log"))
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    assert parent.stdout is not None
+    child = int(parent.stdout.readline())
+    deadline = time.monotonic() + 10.0
+    while "up" not in (tmp_path / "child.log").read_text() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    parent.kill()
+    parent.wait(5.0)
+    assert _gone(child), "the child outlived its SIGKILLed parent"
+    assert "KeyboardInterrupt" in (tmp_path / "child.log").read_text()  # it got SIGINT, a clean stop

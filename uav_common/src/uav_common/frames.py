@@ -25,13 +25,16 @@ import numpy.typing as npt
 from uav_common.rotations import FloatArray, quat_multiply, quat_normalize
 
 __all__ = [
+    "covariance_urt21",
     "enu_to_ned",
     "flu_to_frd",
     "frd_to_flu",
     "ned_to_enu",
+    "pose_covariance_ned_to_enu",
     "quat_enu_flu_to_ned_frd",
     "quat_ned_frd_to_enu_flu",
     "ros_xyzw_to_wxyz",
+    "twist_covariance_frd_to_flu",
     "wrap_pi",
     "wxyz_to_ros_xyzw",
     "yaw_enu_to_ned",
@@ -103,3 +106,53 @@ def quat_ned_frd_to_enu_flu(q_ned_frd: npt.ArrayLike) -> FloatArray:
     """Attitude of an FRD body in NED -> attitude of the FLU body in ENU (both ``[w, x, y, z]``)."""
     # Both fixed rotations are 180-degree turns, hence their own inverses.
     return quat_normalize(quat_multiply(quat_multiply(_Q_NED_ENU, q_ned_frd), _Q_FLU_FRD))
+
+
+# Axis maps as matrices: v_enu = M_ENU_NED v_ned (a proper rotation, its own inverse); v_flu = M_FLU_FRD v_frd.
+_M_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_M_FLU_FRD = np.diag([1.0, -1.0, -1.0])
+
+
+def covariance_urt21(urt: npt.ArrayLike) -> FloatArray | None:
+    """MAVLink's 6x6 covariance as 21 upper-right-triangle values, row by row -> the symmetric 6x6 matrix.
+
+    Returns None when the autopilot says "unknown" (NaN in the first element, the MAVLink convention).
+
+    Raises:
+        ValueError: not 21 values, or non-finite values after a finite first one.
+    """
+    values = np.asarray(urt, dtype=np.float64).reshape(-1)
+    if values.size != 21:
+        msg = f"a MAVLink covariance has 21 values (upper right triangle of 6x6), got {values.size}"
+        raise ValueError(msg)
+    if math.isnan(values[0]):
+        return None
+    if not np.isfinite(values).all():
+        msg = f"covariance has non-finite values: {values.tolist()}"
+        raise ValueError(msg)
+    out = np.zeros((6, 6))
+    out[np.triu_indices(6)] = values
+    return out + np.triu(out, 1).T
+
+
+def _block_rotate(cov: npt.ArrayLike, axes: FloatArray) -> FloatArray:
+    c = np.asarray(cov, dtype=np.float64).reshape(6, 6)
+    b = np.zeros((6, 6))
+    b[:3, :3] = axes
+    b[3:, 3:] = axes
+    return b @ c @ b.T
+
+
+def pose_covariance_ned_to_enu(cov_ned: npt.ArrayLike) -> FloatArray:
+    """Pose covariance ``(x, y, z, roll, pitch, yaw)`` in LOCAL_NED -> ``nav_msgs/Odometry``'s pose covariance in
+    ``map`` ENU (position, then rotation about the x, y, z axes).
+
+    The attitude block is taken as small rotations about the world axes (the usual reading of an EKF's
+    roll/pitch/yaw variances near level flight), so it maps with the same axis swap as the position.
+    """
+    return _block_rotate(cov_ned, _M_ENU_NED)
+
+
+def twist_covariance_frd_to_flu(cov_frd: npt.ArrayLike) -> FloatArray:
+    """Twist covariance ``(vx, vy, vz, wx, wy, wz)`` in body FRD -> the same in body FLU (``base_link``)."""
+    return _block_rotate(cov_frd, _M_FLU_FRD)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from mavlink_router.core.impairment import ImpairmentConfig, LinkDirection
 from mavlink_router.core.routing import Filters
 from mavlink_router.errors import ConfigError
 
@@ -94,6 +95,8 @@ class EndpointOptions:
     require_signing: bool = False
     signing_key_file: Path | None = None
     tx_queue_limit: int = DEFAULT_TX_QUEUE_LIMIT
+    #: A lossy radio link in front of this endpoint (None: a perfect link). See core/impairment.py.
+    link: ImpairmentConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -394,6 +397,9 @@ class _Reader:
         path = Path(value.text).expanduser()
         return Path(posixpath.normpath(path if path.is_absolute() else value.base_dir / path))
 
+    def has(self, key: str) -> bool:
+        return self._lookup(key) is not None
+
     def where(self, key: str) -> str:
         value = self.section.values.get(key.lower())
         line = value.line if value is not None else self.section.line
@@ -439,7 +445,46 @@ _FILTER_KEYS = (
     "AllowSrcCompIn",
     "BlockSrcCompIn",
 )
-_COMMON_KEYS = (*_FILTER_KEYS, "Group", "IgnoreCompId", "RequireSigning", "SigningKeyFile", "TxQueueLimit")
+_LINK_KEYS = (
+    "LossPercent",
+    "LossBurst",
+    "DelayMs",
+    "JitterMs",
+    "ReorderPercent",
+    "ReorderDelayMs",
+    "LinkDirection",
+    "LinkSeed",
+)
+_COMMON_KEYS = (
+    *_FILTER_KEYS,
+    "Group",
+    "IgnoreCompId",
+    "RequireSigning",
+    "SigningKeyFile",
+    "TxQueueLimit",
+    *_LINK_KEYS,
+)
+
+
+def _link(reader: _Reader) -> ImpairmentConfig | None:
+    """The endpoint's lossy-link keys (an extension); None when the section sets none of them."""
+    if not any(reader.has(key) for key in _LINK_KEYS):
+        return None
+    direction = reader.get("LinkDirection", _parse_choice(d.value for d in LinkDirection), LinkDirection.BOTH.value)
+    try:
+        return ImpairmentConfig(
+            loss_pct=reader.get("LossPercent", _parse_float(0.0, 100.0), 0.0),
+            loss_burst=reader.get("LossBurst", _parse_float(0.0, 1e6), 0.0),
+            delay_ms=reader.get("DelayMs", _parse_float(0.0, 60_000.0), 0.0),
+            jitter_ms=reader.get("JitterMs", _parse_float(0.0, 60_000.0), 0.0),
+            reorder_pct=reader.get("ReorderPercent", _parse_float(0.0, 100.0), 0.0),
+            reorder_delay_ms=reader.get("ReorderDelayMs", _parse_float(0.0, 60_000.0), 50.0),
+            direction=LinkDirection(direction),
+            seed=reader.get("LinkSeed", _parse_int(0, 2**63 - 1), 0),
+        )
+    except ValueError as err:  # the cross-key rule (LossBurst against LossPercent)
+        msg = f"{reader.where('LossBurst')} LossBurst: {err}; set LossBurst = 0 for independent losses"
+        raise ConfigError(msg) from None
 
 
 def _filters(reader: _Reader, direction: str, legacy_allow: frozenset[int] = frozenset()) -> Filters:
@@ -473,6 +518,7 @@ def _options(
         require_signing=require_signing,
         signing_key_file=key_file if require_signing else None,
         tx_queue_limit=reader.get("TxQueueLimit", _parse_int(1, 1_000_000), general.tx_queue_limit),
+        link=_link(reader),
     )
 
 

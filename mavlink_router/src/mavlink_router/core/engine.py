@@ -8,7 +8,10 @@ with the bytes and the current time, and writes each returned frame, unchanged,
 to the returned destination slots.
 
 Per received frame, in mavlink-router's order: CRC (known IDs) -> de-duplication
--> inbound filters -> signature policy -> learn the source -> route.
+-> inbound filters -> signature policy -> learn the source -> route. An endpoint with a
+lossy inbound link (:mod:`mavlink_router.core.impairment`) loses, delays and reorders its
+frames right after framing, as the radio in front of it would: a lost frame never reached
+the router; a held one is processed when :meth:`RouterCore.release_inbound` finds it due.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from dataclasses import dataclass
 
 from mavlink_router.core.dedup import Deduplicator
 from mavlink_router.core.frames import Frame, FrameParser, MessageSpec, frame_header
+from mavlink_router.core.impairment import LinkImpairment
 from mavlink_router.core.routing import Filters, Learned, RoutingTable
 from mavlink_router.core.signing import SignatureCheck, SignatureVerifier
 
@@ -96,6 +100,7 @@ class _Endpoint:
         "idle_mark",
         "in_filter",
         "last_seq",
+        "link_in",
         "name",
         "parser",
         "protected",
@@ -109,9 +114,11 @@ class _Endpoint:
         parser: FrameParser,
         in_filter: Filters | None,
         signing: SigningPolicy | None,
+        link_in: LinkImpairment[Frame] | None = None,
     ) -> None:
         self.name = name
         self.parser = parser
+        self.link_in = link_in
         self.in_filter = in_filter
         self.verifier = SignatureVerifier(signing.key) if signing is not None else None
         self.protected: frozenset[int] = signing.protected_msg_ids if signing is not None else frozenset()
@@ -160,12 +167,26 @@ class RouterCore:
         group: str = "",
         ignore_comp_id: bool = False,
         signing: SigningPolicy | None = None,
+        link_in: LinkImpairment[Frame] | None = None,
     ) -> int:
-        """Register an endpoint and return its slot."""
+        """Register an endpoint and return its slot (``link_in``: the lossy link its frames arrive over)."""
         index = self.routing.add_endpoint(out_filter=out_filter, group=group, ignore_comp_id=ignore_comp_id)
         parser = FrameParser(self._table, stream=stream)
-        self._eps[index] = _Endpoint(name, parser, None if in_filter is None or in_filter.empty else in_filter, signing)
+        in_filter = None if in_filter is None or in_filter.empty else in_filter
+        self._eps[index] = _Endpoint(name, parser, in_filter, signing, link_in)
         return index
+
+    def link_in(self, index: int) -> LinkImpairment[Frame] | None:
+        """The lossy inbound link of endpoint ``index`` (None: a perfect one)."""
+        return self._eps[index].link_in
+
+    def release_inbound(self, index: int, now_s: float) -> list[Routed]:
+        """Process the frames held by endpoint ``index``'s lossy inbound link that are due at ``now_s``."""
+        ep = self._eps[index]
+        if ep.link_in is None:
+            return []
+        frames = ep.link_in.due(now_s)
+        return self._route_frames(index, ep, frames, now_s) if frames else []
 
     def remove_endpoint(self, index: int) -> EndpointStats:
         """Unregister a slot (its learned systems go with it); returns its final stats."""
@@ -209,7 +230,7 @@ class RouterCore:
             return []
         return self._process(index, ep, parser.flush(), now_s)
 
-    def _process(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:  # noqa: PLR0912
+    def _process(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:
         stats = ep.stats
         parser = ep.parser
         if parser.crc_errors != ep.crc_mark:
@@ -218,8 +239,14 @@ class RouterCore:
         if parser.garbage_bytes != ep.garbage_mark:
             stats.garbage_bytes += parser.garbage_bytes - ep.garbage_mark
             ep.garbage_mark = parser.garbage_bytes
+        if ep.link_in is not None:
+            frames = ep.link_in.offer_many(frames, now_s)
         if not frames:
             return []
+        return self._route_frames(index, ep, frames, now_s)
+
+    def _route_frames(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:  # noqa: PLR0912
+        stats = ep.stats
         dedup = self._dedup
         in_filter = ep.in_filter
         verifier = ep.verifier

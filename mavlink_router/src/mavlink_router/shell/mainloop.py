@@ -13,7 +13,9 @@ import heapq
 import itertools
 import json
 import logging
+import math
 import os
+import random
 import selectors
 import socket
 import time
@@ -23,7 +25,8 @@ from typing import Any
 
 from mavlink_router.core.config import LogMode, RouterConfig, as_dict
 from mavlink_router.core.engine import EndpointStats, Routed, RouterCore, SigningPolicy
-from mavlink_router.core.frames import MessageSpec
+from mavlink_router.core.frames import Frame, MessageSpec
+from mavlink_router.core.impairment import ImpairmentConfig, LinkImpairment
 from mavlink_router.core.routing import Filters
 from mavlink_router.core.signing import STATE_CHANGING_MESSAGES, parse_key_text
 from mavlink_router.errors import ConfigError
@@ -77,15 +80,28 @@ def load_signing_key(path: Path) -> bytes:
     return parse_key_text(text, source=str(path))
 
 
-def format_stats_line(name: str, address: str, stats: EndpointStats, now_s: float) -> str:
-    """One console line of per-endpoint statistics."""
+def format_stats_line(
+    name: str, address: str, stats: EndpointStats, now_s: float, link: dict[str, dict[str, int]] | None = None
+) -> str:
+    """One console line of per-endpoint statistics (``link``: the lossy link's counters per direction)."""
     seen = "never" if stats.last_rx_s is None else f"{max(0.0, now_s - stats.last_rx_s):.1f} s ago"
     drops = stats.tx_drops + stats.unsigned_drops + stats.bad_signature_drops + stats.replay_drops
-    return (
+    line = (
         f"{name} ({address}): rx {stats.rx_msgs} msgs {stats.rx_bytes / 1000:.1f} kB, "
         f"tx {stats.tx_msgs} msgs {stats.tx_bytes / 1000:.1f} kB, drops {drops}, "
         f"crc errors {stats.crc_errors}, seq lost {stats.seq_lost}, last seen {seen}"
     )
+    for direction, c in (link or {}).items():
+        line += (
+            f"; link {direction}: lost {c['dropped']}/{c['offered']}, delayed {c['delayed']}, "
+            f"reordered {c['reordered']}, held {c['held']}"
+        )
+    return line
+
+
+def _uniform(config: ImpairmentConfig, name: str, direction: str) -> random.Random:
+    """The seeded generator of one endpoint's link in one direction (independent streams, same every run)."""
+    return random.Random(f"{config.seed}:{name}:{direction}")
 
 
 class Router:
@@ -118,6 +134,10 @@ class Router:
         self._timers: list[tuple[float, int, _Timer]] = []
         self._seq = itertools.count()
         self._slots: list[Endpoint | None] = []
+        #: Lossy links: frames sent to a slot cross ``_link_out[slot]`` (those received cross the core's ``link_in``).
+        self._link_out: dict[int, LinkImpairment[tuple[bytes, int]]] = {}
+        self._link_in: dict[int, LinkImpairment[Frame]] = {}
+        self._held_links = False  # some link can hold frames for later
         self.endpoints: list[Endpoint] = []
         self._closed_stats: list[dict[str, object]] = []
         self._stop = False
@@ -167,12 +187,17 @@ class Router:
         group = ""
         ignore = False
         signing = None
+        link: ImpairmentConfig | None = None
         if options is not None:
             in_filter, out_filter = options.in_filter, options.out_filter
             group, ignore = options.group, options.ignore_comp_id
             signing = self._signing(options.require_signing, options.signing_key_file)
+            link = options.link if options.link is not None and options.link.active else None
         elif endpoint.dynamic:
             signing = self._server_signing
+        link_in: LinkImpairment[Frame] | None = None
+        if link is not None and link.direction.inbound:
+            link_in = LinkImpairment(link, _uniform(link, endpoint.name, "in").random)
         slot = self.core.add_endpoint(
             endpoint.name,
             stream=stream,
@@ -181,7 +206,20 @@ class Router:
             group=group,
             ignore_comp_id=ignore,
             signing=signing,
+            link_in=link_in,
         )
+        if link is not None:
+            _LOG.info(
+                "endpoint %s: lossy link (%s): loss %g %% (burst %g), delay %g ms + jitter %g ms, "
+                "reorder %g %%, seed %d",
+                endpoint.name, link.direction.value, link.loss_pct, link.loss_burst, link.delay_ms, link.jitter_ms,
+                link.reorder_pct, link.seed,
+            )  # fmt: skip
+            if link_in is not None:
+                self._link_in[slot] = link_in
+            if link.direction.outbound:
+                self._link_out[slot] = LinkImpairment(link, _uniform(link, endpoint.name, "out").random)
+            self._held_links = self._held_links or link.holds
         endpoint.bind_slot(slot, self.core.stats(slot))
         while len(self._slots) <= slot:
             self._slots.append(None)
@@ -247,13 +285,49 @@ class Router:
             self._on_arm_change()
         tlog = self.tlog
         slots = self._slots
+        link_out = self._link_out
         for frame, dests in routed:
             if tlog is not None:
                 tlog.write(frame, now)
             for dest in dests:
                 endpoint = slots[dest]
-                if endpoint is not None:
+                if endpoint is None:
+                    continue
+                link = link_out.get(dest) if link_out else None
+                if link is None:
                     endpoint.send(frame, slot)
+                else:
+                    for held_frame, source in link.offer((frame, slot), now):
+                        endpoint.send(held_frame, source)
+
+    def _release_held(self) -> None:
+        """Deliver what the lossy links held and is now due, both ways."""
+        now = self._clock()
+        for slot in list(self._link_in):
+            routed = self.core.release_inbound(slot, now)
+            if routed:
+                self._dispatch(slot, routed, now)
+        slots = self._slots
+        for slot, link in list(self._link_out.items()):
+            endpoint = slots[slot] if slot < len(slots) else None
+            for frame, source in link.due(now):
+                if endpoint is not None:
+                    endpoint.send(frame, source)
+
+    def _next_held_s(self) -> float:
+        """Seconds until the next frame a lossy link holds is due (inf if none)."""
+        due = min((link.next_due_s for link in self._link_in.values()), default=math.inf)
+        due = min(due, min((link.next_due_s for link in self._link_out.values()), default=math.inf))
+        return due - self._clock()
+
+    def link_counters(self, slot: int) -> dict[str, dict[str, int]]:
+        """The lossy link's counters of endpoint ``slot`` per direction (empty for a perfect link)."""
+        out: dict[str, dict[str, int]] = {}
+        for direction, links in (("in", self._link_in), ("out", self._link_out)):
+            link = links.get(slot)
+            if link is not None:
+                out[direction] = {**link.counters.as_dict(), "held": link.held}
+        return out
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self) -> None:
@@ -293,6 +367,8 @@ class Router:
         timeout = max_wait_s
         if timers:
             timeout = min(timeout, max(0.0, timers[0][0] - now))
+        if self._held_links:
+            timeout = min(timeout, max(0.0, self._next_held_s()))
         for key, mask in self._sel.select(timeout):
             try:
                 key.data(mask)
@@ -305,6 +381,8 @@ class Router:
             _, _, timer = heapq.heappop(timers)
             if not timer.cancelled:
                 timer.callback()
+        if self._held_links and self._next_held_s() <= 0.0:
+            self._release_held()
         if self._dirty:
             self._flush_dirty()
 
@@ -388,6 +466,9 @@ class Router:
                 "last_seen_age_s": None if stats.last_rx_s is None else round(now - stats.last_rx_s, 3),
                 "systems": [f"{s}/{c}" for s, c in learned],
             }
+            link = self.link_counters(endpoint.slot)
+            if link:
+                entry["link"] = link
             endpoints.append(entry)
         return {
             "time": now,
@@ -410,7 +491,13 @@ class Router:
                 _STATS_LOG.info(
                     "%s%s",
                     "final: " if final else "",
-                    format_stats_line(endpoint.name, endpoint.describe(), self.core.stats(endpoint.slot), now),
+                    format_stats_line(
+                        endpoint.name,
+                        endpoint.describe(),
+                        self.core.stats(endpoint.slot),
+                        now,
+                        self.link_counters(endpoint.slot),
+                    ),
                 )
         if self.stats_path is not None:
             self._write_stats_file(self.stats_path)

@@ -5,13 +5,18 @@ all of them use this module, so every child runs in its own process group with i
 in a log file, and :func:`stop_process_group` ends the whole group: SIGINT (the clean
 shutdown ROS tools expect), then SIGTERM, then SIGKILL, then SIGKILL again for anything
 in the group that outlived its leader (``rosbag play --wait-for-subscribers`` ignores SIGINT
-while it waits).
+while it waits). ``roslaunch`` starts the master and every node in a session of its own, out of
+its group's reach: whatever descended from the leader and is still alive once the leader is
+gone (a master and nodes orphaned by a killed roslaunch) is stopped too, SIGTERM then SIGKILL.
+A child can also be told to receive a signal when its parent dies (``parent_death_signal``),
+so a killed ``uav-run`` or campaign worker never leaves its run behind.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -21,7 +26,63 @@ from pathlib import Path
 
 from uav_common.errors import ResourceError
 
-__all__ = ["LoggedProcess", "free_port", "free_udp_port", "stop_process_group", "wait_for_port"]
+__all__ = [
+    "LoggedProcess",
+    "descendants",
+    "free_port",
+    "free_udp_port",
+    "stop_process_group",
+    "wait_for_port",
+    "with_parent_death_signal",
+]
+
+
+def _start_time(pid: int) -> str | None:
+    """The process's start time (clock ticks since boot), to tell it from a later process with the same pid."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return fields[19] if len(fields) > 19 and fields[0] != "Z" else None
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """Every live descendant of ``pid`` (children, their children...), pid -> start time (Linux ``/proc``)."""
+    parent: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int(Path(entry, "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        parent[int(entry.name)] = ppid
+    children: dict[int, list[int]] = {}
+    for child, ppid in parent.items():
+        children.setdefault(ppid, []).append(child)
+    out: dict[int, str] = {}
+    todo = list(children.get(pid, []))
+    while todo:
+        child = todo.pop()
+        started = _start_time(child)
+        if started is not None:
+            out[child] = started
+        todo.extend(children.get(child, []))
+    return out
+
+
+def _stop_orphans(known: dict[int, str], timeout_s: float) -> None:
+    """SIGTERM, then SIGKILL, the processes of ``known`` that are still the same processes and alive."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        alive = [pid for pid, started in known.items() if _start_time(pid) == started]
+        if not alive:
+            return
+        for pid in alive:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, sig)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and any(_start_time(pid) == known[pid] for pid in alive):
+            time.sleep(0.05)
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -47,16 +108,19 @@ def stop_process_group(
     Returns:
         the leader's exit status (``None`` only if even SIGKILL did not reap it in time).
     """
+    tree = descendants(proc.pid)  # before the leader can die and its children be re-parented
     stages = ((signal.SIGINT, int_timeout_s), (signal.SIGTERM, term_timeout_s), (signal.SIGKILL, kill_timeout_s))
     for sig, wait_s in stages:
         if proc.poll() is not None:
             break
+        tree |= descendants(proc.pid)
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, sig)
         with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=wait_s)
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGKILL)  # stragglers only: the leader has exited or been killed
+    _stop_orphans(tree, kill_timeout_s)  # what the leader started in sessions of their own and left behind
     return proc.returncode
 
 
@@ -86,10 +150,24 @@ def wait_for_port(
     raise ResourceError(msg)
 
 
+def with_parent_death_signal(argv: Sequence[str], sig: int) -> list[str]:
+    """``argv`` run under ``setpriv --pdeathsig SIG`` (util-linux): the kernel sends ``sig`` when its parent dies.
+
+    Raises:
+        ResourceError: ``setpriv`` is not installed.
+    """
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        msg = "setpriv (util-linux) is not on PATH; install util-linux (it is part of every Debian system)"
+        raise ResourceError(msg)
+    return [setpriv, "--pdeathsig", signal.Signals(sig).name.removeprefix("SIG"), "--", *argv]
+
+
 class LoggedProcess:
     """One child process in its own process group, its stdout and stderr in ``log_path``.
 
     Use as a context manager or call :meth:`stop`; ``env`` is merged over the current environment.
+    ``parent_death_signal`` (e.g. ``signal.SIGINT``): the signal the child gets if this process dies.
     """
 
     def __init__(
@@ -100,9 +178,10 @@ class LoggedProcess:
         log_path: Path,
         env: Mapping[str, str] | None = None,
         cwd: Path | None = None,
+        parent_death_signal: int | None = None,
     ) -> None:
         self.name = name
-        self.argv = list(argv)
+        self.argv = list(argv) if parent_death_signal is None else with_parent_death_signal(argv, parent_death_signal)
         self.log_path = log_path
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = log_path.open("wb")

@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import ConfigError, load_yaml_mapping
+from uav_common.config import ConfigError, load_yaml_mapping, to_mapping
 from uav_common.paths import config_dir
+from uav_common.robot import RobotDescription
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
 from uav_sim_bridge.core.collision import CollisionConfig
 from uav_sim_bridge.core.detections import DetectionConfig
@@ -23,6 +24,7 @@ from uav_sim_bridge.core.motion import ActorsConfig
 from uav_sim_bridge.core.render_settings import RenderSettings
 from uav_sim_bridge.core.schedule import LockstepConfig
 from uav_sim_bridge.core.sensor_noise import NoiseConfig
+from uav_sim_bridge.errors import SimBridgeConfigError
 
 __all__ = [
     "GroundTruthDetectionsConfig",
@@ -34,14 +36,16 @@ __all__ = [
     "environment_preset_path",
     "environment_presets",
     "load_environment_preset",
+    "mounted_cameras",
     "resolve_environment",
     "resolve_world_path",
 ]
 
 
 def default_cameras() -> dict[str, CameraConfig]:
-    """The architecture's default cameras: a nadir mapping camera at 5 Hz and a forward camera pitched 25 degrees
-    down at 10 Hz (config/sim_bridge.yaml says why)."""
+    """The architecture's default cameras: a nadir mapping camera at 5 Hz and a forward camera at 10 Hz
+    (config/sim_bridge.yaml says why). Their mounts come from the robot description (config/robot.yaml:
+    nadir straight down, forward 25 degrees down); the node fills them in."""
     return {
         "nadir": CameraConfig(hfov_deg=90.0, rate_hz=5.0, mount=MountConfig((0.0, 0.0, -0.08), (0.0, 90.0, 0.0))),
         "forward": CameraConfig(hfov_deg=90.0, rate_hz=10.0, mount=MountConfig((0.12, 0.0, -0.04), (0.0, 25.0, 0.0))),
@@ -237,3 +241,34 @@ def resolve_environment(raw: Mapping[str, Any] | str | None, presets_dir: Path |
         msg = f"environment must be a mapping (preset: NAME plus keys), got {raw!r}"
         raise ConfigError(msg)
     return merge_environment(raw, lambda name: load_environment_preset(name, presets_dir))
+
+
+def mounted_cameras(cameras: Any, robot: RobotDescription, *, source: str) -> dict[str, Any]:
+    """The bridge's cameras (intrinsics from its config; the defaults if it names none) with each mount taken
+    from the robot description, the one file that says where sensors sit on the airframe.
+
+    Raises:
+        SimBridgeConfigError: a camera of the bridge's config sets ``mount`` (it belongs in the robot
+            description), or the robot description has no such camera.
+    """
+    if cameras is None:
+        cameras = {
+            name: {k: v for k, v in to_mapping(cam).items() if k != "mount"} for name, cam in default_cameras().items()
+        }
+    if not isinstance(cameras, dict):
+        return cameras  # from_mapping reports the wrong type with the key
+    out: dict[str, Any] = {}
+    for name, cam in cameras.items():
+        if isinstance(cam, dict) and "mount" in cam:
+            msg = (
+                f"{source}: cameras.{name}.mount: camera extrinsics live in the robot description "
+                f"(config/robot.yaml, cameras.{name}), the file a real airframe edits; remove mount here"
+            )
+            raise SimBridgeConfigError(msg)
+        try:
+            mount = robot.mount(str(name))
+        except KeyError as err:
+            msg = f"{source}: camera {name!r} has no mount: {err.args[0]} (add it to config/robot.yaml)"
+            raise SimBridgeConfigError(msg) from err
+        out[name] = {**(cam or {}), "mount": {"xyz_m": list(mount.xyz_m), "rpy_deg": list(mount.rpy_deg)}}
+    return out

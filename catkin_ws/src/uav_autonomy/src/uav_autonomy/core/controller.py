@@ -27,6 +27,11 @@ States and transitions (see docs/autonomy.md for the full table):
   link drops (no heartbeat for ``link_timeout_s``) or position telemetry goes
   stale, it stops sending setpoints and goes to IDLE; after the link returns it
   sends nothing until it is asked again, so no stale setpoint is ever sent.
+* The pose the rest of the autonomy plans on (:class:`PoseCheck`, when the shell
+  watches one): if it goes stale or turns NaN/inf, or the autopilot's own position
+  does, the controller stops commanding at once: no more setpoints, the autopilot is
+  asked to hold (its LOITER), the state is IDLE and ``last_event`` says why. It
+  refuses every offboard state until the pose is fit again.
 
 Time: every timeout and retry interval is measured in the caller's (simulated)
 time. When the shell also passes a wall clock, a timeout (link, position) or a
@@ -50,6 +55,7 @@ import numpy.typing as npt
 
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError
 from uav_common.autopilot_modes import Autopilot, FlightMode, decode_custom_mode, mode_name
+from uav_common.validate import require_finite_vector
 
 __all__ = [
     "OFFBOARD_STATES",
@@ -57,6 +63,7 @@ __all__ = [
     "ControllerConfig",
     "ControllerState",
     "ControllerStatus",
+    "PoseCheck",
     "RequestArm",
     "RequestMode",
     "RequestTakeoff",
@@ -109,6 +116,8 @@ class ControllerConfig:
     link_timeout_s: float = 2.0
     reconnect_after_s: float = 5.0
     position_timeout_s: float = 1.0
+    #: The watched pose estimate (the node's ``~pose_topic``) is stale after this long without a fresh one.
+    pose_timeout_s: float = 1.0
     wall_floor_s: float = 0.5
     takeoff_height_m: float = 10.0
     altitude_tolerance_m: float = 1.0
@@ -132,6 +141,7 @@ class ControllerConfig:
             "link_timeout_s",
             "reconnect_after_s",
             "position_timeout_s",
+            "pose_timeout_s",
             "takeoff_height_m",
             "altitude_tolerance_m",
             "acceptance_radius_m",
@@ -177,6 +187,7 @@ class Telemetry:
         position_s: arrival time of that position.
         position_wall_s: the same arrival on the wall clock (None: the shell has no wall clock).
         yaw_enu_rad: last ATTITUDE yaw in ENU (None: never).
+        position_invalid: why the last LOCAL_POSITION_NED could not be used ("" if it could): NaN/inf.
     """
 
     heartbeat_s: float | None = None
@@ -189,6 +200,7 @@ class Telemetry:
     yaw_enu_rad: float | None = None
     heartbeat_wall_s: float | None = None
     position_wall_s: float | None = None
+    position_invalid: str = ""
 
     @property
     def mode(self) -> FlightMode | None:
@@ -198,6 +210,21 @@ class Telemetry:
     @property
     def mode_name(self) -> str:
         return "" if self.heartbeat_s is None else mode_name(self.autopilot, self.custom_mode)
+
+
+@dataclass(frozen=True)
+class PoseCheck:
+    """Whether the pose estimate the autonomy plans on can be flown on (the shell's watchdog decides).
+
+    Attributes:
+        ok: fresh and finite.
+        reason: why not (e.g. "no fresh estimate for 1.4 s (timeout 1 s)").
+        source: what was watched (e.g. the odometry topic), for the messages.
+    """
+
+    ok: bool
+    reason: str = ""
+    source: str = "pose estimate"
 
 
 @dataclass(frozen=True)
@@ -281,18 +308,6 @@ class _Follower:
     finished: bool = False
 
 
-def _finite_vec(name: str, value: object, size: int) -> tuple[float, ...]:
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as err:
-        msg = f"{name}: expected {size} numbers, got {value!r}"
-        raise InvalidInputError(msg) from err
-    if arr.size != size or not np.isfinite(arr).all():
-        msg = f"{name}: expected {size} finite numbers, got {arr.tolist()}"
-        raise InvalidInputError(msg)
-    return tuple(float(v) for v in arr)
-
-
 @dataclass
 class _Targets:
     """Per-state targets, kept between steps."""
@@ -318,6 +333,7 @@ class WaypointController:
         self._mode_request: _AutopilotModeRequest | None = None
         self._targets = _Targets()
         self._telemetry = Telemetry()
+        self._pose: PoseCheck | None = None
         self._link_ok = False
         self._now_wall_s: float | None = None
         self._last_event = "started"
@@ -366,7 +382,11 @@ class WaypointController:
             if pattern.shape[0] == 0 or not np.isfinite(pattern).all():
                 msg = f"waypoints must be >= 1 finite [x, y, z] points, got {pattern.tolist()}"
                 raise InvalidInputError(msg)
-        stare = None if stare_at_enu_m is None else _finite_vec("stare_at", stare_at_enu_m, 3)
+        stare = (
+            None
+            if stare_at_enu_m is None
+            else require_finite_vector("stare_at", stare_at_enu_m, 3, error=InvalidInputError)
+        )
         if target is ControllerState.IDLE:
             self._release("IDLE requested: released control")
             return self._state
@@ -397,6 +417,10 @@ class WaypointController:
             problem = "SCRIPTED needs waypoints (a waypoint list, lawnmower or expanding square)"
         elif t.position_enu_m is None:
             problem = "no position telemetry yet"
+        elif t.position_invalid:
+            problem = f"the autopilot's position estimate is invalid ({t.position_invalid})"
+        elif self._pose is not None and not self._pose.ok:
+            problem = f"the {self._pose.source} cannot be flown on ({self._pose.reason})"
         elif target is ControllerState.TAKEOFF and t.in_air:
             problem = "already in the air (request HOLD, AUTONOMOUS, SCRIPTED or MANUAL)"
         if problem:
@@ -423,7 +447,7 @@ class WaypointController:
             InvalidInputError: NaN/inf position or yaw; nothing changes.
             InvalidTransitionError: via :meth:`request` when MANUAL cannot be entered.
         """
-        pos = _finite_vec("manual setpoint", position_enu_m, 3)
+        pos = require_finite_vector("manual setpoint", position_enu_m, 3, error=InvalidInputError)
         if yaw_enu_rad is not None and not math.isfinite(yaw_enu_rad):
             msg = f"manual yaw must be finite, got {yaw_enu_rad}"
             raise InvalidInputError(msg)
@@ -433,7 +457,9 @@ class WaypointController:
             self.request(ControllerState.MANUAL, now_s)
 
     # -------------------------------------------------------------------- step
-    def step(self, now_s: float, telemetry: Telemetry, now_wall_s: float | None = None) -> list[Action]:
+    def step(
+        self, now_s: float, telemetry: Telemetry, now_wall_s: float | None = None, pose: PoseCheck | None = None
+    ) -> list[Action]:
         """Advance to ``now_s`` with fresh telemetry; returns what to send now.
 
         Args:
@@ -441,8 +467,10 @@ class WaypointController:
             telemetry: what the shell last heard.
             now_wall_s: current wall-clock time, the clock of its ``*_wall_s`` stamps (None: judge every
                 interval in ``now_s`` alone; see the module docstring).
+            pose: the state of the pose estimate the autonomy plans on (None: not watched).
         """
         self._telemetry = telemetry
+        self._pose = pose
         self._now_wall_s = now_wall_s
         cfg = self.config
         actions, self._queued = self._queued, []
@@ -485,6 +513,10 @@ class WaypointController:
         self._engagement = None
         self._mode_request = None
         self._event(reason)
+
+    def _take_queued(self) -> list[Action]:
+        actions, self._queued = self._queued, []
+        return actions
 
     def _release(self, reason: str) -> None:
         """IDLE on request: while flying in OFFBOARD, hand the vehicle to the autopilot's hold mode."""
@@ -554,7 +586,7 @@ class WaypointController:
             return [RequestMode(req.mode)]
         return []
 
-    def _step_offboard(self, now_s: float, t: Telemetry) -> list[Action]:
+    def _step_offboard(self, now_s: float, t: Telemetry) -> list[Action]:  # noqa: PLR0911
         cfg = self.config
         eng = self._engagement
         if eng is None:  # pragma: no cover - _enter always sets it
@@ -567,6 +599,13 @@ class WaypointController:
         if not fresh:
             self._go_idle("position telemetry stale: stopped sending setpoints")
             return []
+        if t.position_invalid:
+            self._release(f"the autopilot's position estimate is invalid ({t.position_invalid}): stopped commanding")
+            return self._take_queued()
+        pose = self._pose
+        if pose is not None and not pose.ok:
+            self._release(f"{pose.source} cannot be flown on ({pose.reason}): stopped commanding")
+            return self._take_queued()
         mode = t.mode
         if eng.offboard_confirmed and mode is not FlightMode.OFFBOARD:
             self._yield_to(mode, "autopilot left OFFBOARD (failsafe or pilot)")

@@ -18,22 +18,11 @@ import numpy.typing as npt
 
 from uav_autonomy.core.geometry2d import as_polygon
 from uav_autonomy.errors import InvalidInputError
+from uav_common.validate import require_finite, require_positive
 
 __all__ = ["expanding_square", "follow_terrain", "lawnmower", "waypoint_list"]
 
 PathArray = npt.NDArray[np.float64]
-
-
-def _check_positive(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0.0):
-        msg = f"{name} must be a finite number > 0, got {value}"
-        raise InvalidInputError(msg)
-
-
-def _check_finite(name: str, value: float) -> None:
-    if not math.isfinite(value):
-        msg = f"{name} must be finite, got {value}"
-        raise InvalidInputError(msg)
 
 
 def waypoint_list(points_enu_m: npt.ArrayLike) -> PathArray:
@@ -67,13 +56,13 @@ def lawnmower(
         InvalidInputError: a degenerate polygon, non-positive spacing, NaN inputs.
     """
     poly = as_polygon(polygon_xy_m, "lawnmower polygon")
-    _check_positive("spacing_m", spacing_m)
-    _check_finite("altitude_m", altitude_m)
+    require_positive("spacing_m", spacing_m, error=InvalidInputError)
+    require_finite("altitude_m", altitude_m, error=InvalidInputError)
     if sweep_heading_rad is None:
         edges = np.roll(poly, -1, axis=0) - poly
         longest = edges[int(np.argmax(np.hypot(edges[:, 0], edges[:, 1])))]
         sweep_heading_rad = math.atan2(longest[1], longest[0])
-    _check_finite("sweep_heading_rad", sweep_heading_rad)
+    require_finite("sweep_heading_rad", sweep_heading_rad, error=InvalidInputError)
     c, s = math.cos(sweep_heading_rad), math.sin(sweep_heading_rad)
     # Rotate into a frame whose u axis runs along the tracks and v across them.
     rot = np.array([[c, s], [-s, c]])
@@ -123,13 +112,13 @@ def expanding_square(
     Returns:
         ``(N, 3)`` ENU waypoints at ``altitude_m``, starting at the datum.
     """
-    _check_positive("spacing_m", spacing_m)
-    _check_positive("max_radius_m", max_radius_m)
-    _check_finite("altitude_m", altitude_m)
-    _check_finite("first_heading_rad", first_heading_rad)
+    require_positive("spacing_m", spacing_m, error=InvalidInputError)
+    require_positive("max_radius_m", max_radius_m, error=InvalidInputError)
+    require_finite("altitude_m", altitude_m, error=InvalidInputError)
+    require_finite("first_heading_rad", first_heading_rad, error=InvalidInputError)
     cx, cy = center_xy_m
-    _check_finite("center x", cx)
-    _check_finite("center y", cy)
+    require_finite("center x", cx, error=InvalidInputError)
+    require_finite("center y", cy, error=InvalidInputError)
     x, y = cx, cy
     heading = first_heading_rad
     pts = [(x, y)]
@@ -172,9 +161,9 @@ def follow_terrain(
             (``ground_m`` is NaN somewhere under it).
     """
     wp = waypoint_list(waypoints_enu_m)
-    _check_positive("agl_m", agl_m)
-    _check_positive("max_leg_m", max_leg_m)
-    _check_positive("sample_m", sample_m)
+    require_positive("agl_m", agl_m, error=InvalidInputError)
+    require_positive("max_leg_m", max_leg_m, error=InvalidInputError)
+    require_positive("sample_m", sample_m, error=InvalidInputError)
     xy = [wp[0, :2]]
     for a, b in zip(wp[:-1, :2], wp[1:, :2], strict=True):
         pieces = max(1, math.ceil(float(np.linalg.norm(b - a)) / max_leg_m))

@@ -38,13 +38,13 @@ import numpy.typing as npt
 from uav_autonomy.core.geometry2d import as_polygon, points_in_polygon, segment_samples
 from uav_autonomy.core.grid_geometry import FloatGrid, GridSpec
 from uav_autonomy.errors import InvalidInputError, NoPathError, PlanningError
+from uav_common.validate import require_finite_vector
 
 __all__ = [
     "ElevationMap",
     "PlannerConfig",
     "VoxelGrid",
     "build_voxels",
-    "check_finite_point",
     "dem_conflict_m",
     "dilate3",
     "goal_altitude_m",
@@ -136,13 +136,6 @@ class ElevationMap:
         return math.nan if cell is None else float(self.elevation_m[cell])
 
 
-def check_finite_point(name: str, values: tuple[float, ...]) -> None:
-    """Raise :class:`InvalidInputError` naming ``name`` unless every coordinate is finite."""
-    if not all(math.isfinite(v) for v in values):
-        msg = f"{name} must be finite, got {values}"
-        raise InvalidInputError(msg)
-
-
 def max_elevation_along_m(dem: ElevationMap, a_xy: tuple[float, float], b_xy: tuple[float, float]) -> float:
     """Highest known elevation of the cells the segment ``a -> b`` crosses (NaN if none known).
 
@@ -190,8 +183,8 @@ def plan_straight(
         NoPathError: the segment leaves the geofence or enters a no-fly zone, or
             the cruise altitude exceeds ``max_altitude_m``.
     """
-    check_finite_point("start", start_enu)
-    check_finite_point("goal", goal_xy)
+    require_finite_vector("start", start_enu, len(start_enu), error=InvalidInputError)
+    require_finite_vector("goal", goal_xy, len(goal_xy), error=InvalidInputError)
     sx, sy, sz = start_enu
     goal_z = goal_altitude_m(dem, goal_xy, config)
     highest = max_elevation_along_m(dem, (sx, sy), goal_xy)
@@ -492,8 +485,8 @@ def plan_astar(
         NoPathError: no path through free space (or ``max_expansions`` exceeded).
         PlanningError: the domain is too large for the voxel size.
     """
-    check_finite_point("start", start_enu)
-    check_finite_point("goal", goal_xy)
+    require_finite_vector("start", start_enu, len(start_enu), error=InvalidInputError)
+    require_finite_vector("goal", goal_xy, len(goal_xy), error=InvalidInputError)
     goal_z = min(max(goal_altitude_m(dem, goal_xy, config), config.min_altitude_m), config.max_altitude_m)
     goal = (goal_xy[0], goal_xy[1], goal_z)
     return search_voxels(build_voxels(dem, start_enu, goal, config), start_enu, goal, config)

@@ -40,12 +40,12 @@ from uav_autonomy.core.planning import (
     PathArray,
     PlannerConfig,
     VoxelGrid,
-    check_finite_point,
     dilate3,
     pad_grid,
     search_voxels,
 )
 from uav_autonomy.errors import InvalidInputError, PlanningError
+from uav_common.validate import require_finite_vector
 
 __all__ = [
     "VoxelOccupancy",
@@ -441,8 +441,8 @@ def plan_on_voxel_map(
         NoPathError: no path through free space (or ``max_expansions`` exceeded).
         PlanningError: the domain is too large for the voxel size.
     """
-    check_finite_point("start", start_enu)
-    check_finite_point("goal", goal_xy)
+    require_finite_vector("start", start_enu, len(start_enu), error=InvalidInputError)
+    require_finite_vector("goal", goal_xy, len(goal_xy), error=InvalidInputError)
     goal = (goal_xy[0], goal_xy[1], goal_altitude_on_map_m(occ, dem, goal_xy, config))
     grid = grid_from_occupancy(occ, start_enu, goal, config)
     return search_voxels(grid, start_enu, goal, config), grid

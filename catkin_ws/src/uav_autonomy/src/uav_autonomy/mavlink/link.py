@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+import select
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from uav_autonomy.core.controller import (
@@ -30,17 +32,11 @@ from uav_autonomy.core.controller import (
     SendSetpoint,
     Telemetry,
 )
+from uav_autonomy.core.pose_estimate import AssumedAccuracy, estimate_from_local_position
 from uav_autonomy.errors import InvalidInputError, MavlinkLinkError
 from uav_common.autopilot_modes import Autopilot, FlightMode, set_mode_params
-from uav_common.frames import (
-    enu_to_ned,
-    frd_to_flu,
-    ned_to_enu,
-    quat_ned_frd_to_enu_flu,
-    yaw_enu_to_ned,
-    yaw_ned_to_enu,
-)
-from uav_common.rotations import quat_conjugate, quat_from_euler, rotate
+from uav_common.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
+from uav_common.rotations import quat_from_euler
 
 __all__ = ["POSITION_YAW_TYPE_MASK", "BatteryReading", "MavlinkLink", "OdometryReading"]
 
@@ -54,6 +50,7 @@ _MAV_FRAME_LOCAL_NED = 1
 _MAV_CMD_DO_SET_MODE = 176
 _MAV_CMD_COMPONENT_ARM_DISARM = 400
 _MAV_CMD_NAV_TAKEOFF = 22
+_MAV_CMD_SET_MESSAGE_INTERVAL = 511
 _MAV_MODE_FLAG_SAFETY_ARMED = 128
 _LANDED_IN_AIR = (2, 3, 4)  # MAV_LANDED_STATE: IN_AIR, TAKEOFF, LANDING
 _EXT_STATE_FRESH_S = 3.0
@@ -81,6 +78,8 @@ class OdometryReading:
             nav_msgs/Odometry wants its twist.
         angular_flu_radps: ATTITUDE's body rates in FLU.
         stamp_s: arrival time of the position (caller's clock).
+        pose_covariance, twist_covariance: 6x6 row-major; LOCAL_POSITION_NED carries none, so these are the
+            :class:`~uav_autonomy.core.pose_estimate.AssumedAccuracy` defaults.
     """
 
     position_enu_m: tuple[float, float, float]
@@ -88,6 +87,8 @@ class OdometryReading:
     velocity_flu_mps: tuple[float, float, float]
     angular_flu_radps: tuple[float, float, float]
     stamp_s: float
+    pose_covariance: tuple[float, ...] = ()
+    twist_covariance: tuple[float, ...] = ()
 
 
 @dataclass
@@ -100,6 +101,8 @@ class _State:
     position_ned: tuple[float, float, float] | None = None
     position_s: float | None = None
     position_wall_s: float | None = None
+    position_invalid: str = ""
+    invalid_positions: int = 0
     yaw_ned_rad: float | None = None
     velocity_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     q_ned_frd_wxyz: tuple[float, float, float, float] | None = None
@@ -123,8 +126,12 @@ class MavlinkLink:
         target_component: int,
         reconnect_after_s: float,
         wall_floor_s: float = 0.0,
+        on_message: Callable[[object, float, float | None], None] | None = None,
     ) -> None:
+        """``on_message(msg, now_s, now_wall_s)``: also called for every message from the target (after this
+        link has taken what it needs), e.g. the estimate messages of the autopilot odometry node."""
         self.url = url
+        self.on_message = on_message
         self.source_system = source_system
         self.source_component = source_component
         self.target_system = target_system
@@ -172,6 +179,17 @@ class MavlinkLink:
             conn.close()  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------- receive
+    def wait_readable(self, timeout_s: float) -> None:
+        """Block until a datagram or bytes are waiting, or ``timeout_s`` (for a reader thread)."""
+        fd = getattr(self._require(), "fd", None)
+        if fd is None:
+            time.sleep(timeout_s)
+            return
+        try:
+            select.select([fd], [], [], timeout_s)
+        except (OSError, ValueError):  # the socket was closed and reopened meanwhile
+            time.sleep(min(timeout_s, 0.01))
+
     def poll(self, now_s: float, now_wall_s: float | None = None) -> None:
         """Read every pending message; reopen the socket after ``reconnect_after_s`` of silence (see module doc)."""
         conn = self._require()
@@ -199,6 +217,11 @@ class MavlinkLink:
         src_comp = msg.get_srcComponent()  # type: ignore[attr-defined]
         if src_sys != self.target_system or src_comp != self.target_component:
             return
+        self._take(msg, mtype, now_s, now_wall_s)
+        if self.on_message is not None:
+            self.on_message(msg, now_s, now_wall_s)
+
+    def _take(self, msg: object, mtype: str, now_s: float, now_wall_s: float | None) -> None:
         st = self._st
         if mtype == "HEARTBEAT":
             if msg.type == _MAV_TYPE_GCS or msg.autopilot == _MAV_AUTOPILOT_INVALID:  # type: ignore[attr-defined]
@@ -209,8 +232,16 @@ class MavlinkLink:
             st.base_mode = int(msg.base_mode)  # type: ignore[attr-defined]
             st.autopilot = Autopilot.from_heartbeat(int(msg.autopilot))  # type: ignore[attr-defined]
         elif mtype == "LOCAL_POSITION_NED":
-            st.position_ned = (float(msg.x), float(msg.y), float(msg.z))  # type: ignore[attr-defined]
-            st.velocity_ned_mps = (float(msg.vx), float(msg.vy), float(msg.vz))  # type: ignore[attr-defined]
+            position = (float(msg.x), float(msg.y), float(msg.z))  # type: ignore[attr-defined]
+            if not all(math.isfinite(v) for v in position):
+                # An estimator that lost its position says so with NaN: never a position to fly on.
+                st.position_invalid = f"LOCAL_POSITION_NED with non-finite position {list(position)}"
+                st.invalid_positions += 1
+                return
+            st.position_invalid = ""
+            st.position_ned = position
+            velocity = (float(msg.vx), float(msg.vy), float(msg.vz))  # type: ignore[attr-defined]
+            st.velocity_ned_mps = velocity if all(math.isfinite(v) for v in velocity) else (0.0, 0.0, 0.0)
             st.position_s = now_s
             st.position_wall_s = now_wall_s
         elif mtype == "ATTITUDE":
@@ -263,6 +294,7 @@ class MavlinkLink:
             yaw_enu_rad=None if st.yaw_ned_rad is None else yaw_ned_to_enu(st.yaw_ned_rad),
             heartbeat_wall_s=st.heartbeat_wall_s,
             position_wall_s=st.position_wall_s,
+            position_invalid=st.position_invalid,
         )
 
     def battery(self) -> BatteryReading:
@@ -273,18 +305,24 @@ class MavlinkLink:
         st = self._st
         if st.position_ned is None or st.position_s is None:
             return None
-        p = ned_to_enu(st.position_ned)
         q_ned = st.q_ned_frd_wxyz if st.q_ned_frd_wxyz is not None else (1.0, 0.0, 0.0, 0.0)
-        q = quat_ned_frd_to_enu_flu(q_ned)
-        # World velocity in ENU, then into the FLU body frame (nav_msgs/Odometry's twist is in child_frame_id).
-        v_body = rotate(quat_conjugate(q), ned_to_enu(st.velocity_ned_mps))
-        w = frd_to_flu(st.rates_frd_radps)
+        # The one conversion of the autopilot's estimate (core.pose_estimate); its stamp here is the arrival.
+        est = estimate_from_local_position(
+            0,
+            st.position_ned,
+            velocity_ned_mps=st.velocity_ned_mps,
+            q_ned_frd_wxyz=q_ned,
+            rates_frd_radps=st.rates_frd_radps,
+            assumed=AssumedAccuracy(),
+        )
         return OdometryReading(
-            position_enu_m=(float(p[0]), float(p[1]), float(p[2])),
-            q_enu_flu_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
-            velocity_flu_mps=(float(v_body[0]), float(v_body[1]), float(v_body[2])),
-            angular_flu_radps=(float(w[0]), float(w[1]), float(w[2])),
+            position_enu_m=est.position_enu_m,
+            q_enu_flu_wxyz=est.q_enu_flu_wxyz,
+            velocity_flu_mps=est.velocity_flu_mps,
+            angular_flu_radps=est.angular_flu_radps,
             stamp_s=st.position_s,
+            pose_covariance=est.pose_covariance,
+            twist_covariance=est.twist_covariance,
         )
 
     def pop_status_texts(self) -> list[str]:
@@ -338,6 +376,15 @@ class MavlinkLink:
             yaw_enu_to_ned(yaw_enu_rad),
             0.0,
         )  # fmt: skip
+
+    def send_timesync(self, tc1_ns: int, ts1_ns: int) -> None:
+        """TIMESYNC (#111): ``tc1 = 0`` asks the autopilot for its time; ``ts1`` is ours (ns)."""
+        self._mav().timesync_send(tc1_ns, ts1_ns)
+
+    def set_message_interval(self, msg_id: int, rate_hz: float) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: stream ``msg_id`` at ``rate_hz`` on this link (0: the autopilot's default)."""
+        interval_us = 0.0 if rate_hz <= 0.0 else 1e6 / rate_hz
+        self._command(_MAV_CMD_SET_MESSAGE_INTERVAL, float(msg_id), interval_us)
 
     def request_mode(self, mode: FlightMode) -> None:
         """MAV_CMD_DO_SET_MODE in the autopilot's encoding (confirmation comes from the heartbeat)."""

@@ -4,6 +4,9 @@ ROS interface:
 
 Subscribes:
     ``/autonomy/path`` (nav_msgs/Path, map ENU): followed in AUTONOMOUS.
+    ``~pose_topic`` (nav_msgs/Odometry, when the parameter is set): the pose the rest of the autonomy plans on.
+    If it goes stale (no fresh message for ``pose_timeout_s``) or carries NaN/inf, the controller stops
+    commanding at once (asks the autopilot to hold, goes IDLE, says why) and refuses to fly until it is fit.
     ``~manual_setpoint`` (geometry_msgs/PoseStamped, map ENU): operator override; switches to
     MANUAL at once (taking off first on the ground); NaN/inf rejected.
 Publishes:
@@ -16,7 +19,8 @@ Services:
     ``~set_state`` (uav_msgs/SetControllerState): IDLE TAKEOFF AUTONOMOUS SCRIPTED MANUAL HOLD RTL LAND.
 Parameters:
     ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``controller``;
-    ``~overrides`` (dict, default {}); ``~connection_url`` (str, optional): wins over both.
+    ``~overrides`` (dict, default {}); ``~connection_url`` (str, optional): wins over both;
+    ``~pose_topic`` (str, default "": not watched).
     Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 MAVLink: connects with ``connection_url`` (pymavlink syntax), sysid/compid 1/191,
@@ -43,8 +47,15 @@ from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Header
 
-from uav_autonomy.core.controller import ControllerConfig, ControllerState, ControllerStatus, WaypointController
+from uav_autonomy.core.controller import (
+    ControllerConfig,
+    ControllerState,
+    ControllerStatus,
+    PoseCheck,
+    WaypointController,
+)
 from uav_autonomy.core.patterns import expanding_square, lawnmower, waypoint_list
+from uav_autonomy.core.pose_estimate import EstimateState, EstimateWatchdog
 from uav_autonomy.errors import InvalidInputError, InvalidTransitionError, UavAutonomyError
 from uav_autonomy.mavlink.link import MavlinkLink
 from uav_autonomy.ros.conversions import (
@@ -92,9 +103,11 @@ def scripted_waypoints(req: object, default_altitude_m: float) -> list[tuple[flo
 
 
 class WaypointControllerNode:
-    def __init__(self, config: ControllerConfig) -> None:
+    def __init__(self, config: ControllerConfig, pose_topic: str = "") -> None:
         self.config = config
         self.core = WaypointController(config)
+        self.pose_topic = pose_topic
+        self.pose_watchdog = EstimateWatchdog(config.pose_timeout_s, config.wall_floor_s) if pose_topic else None
         self.link = MavlinkLink(
             config.connection_url,
             source_system=config.source_system,
@@ -119,6 +132,8 @@ class WaypointControllerNode:
         self.pub_odom = rospy.Publisher("/uav/controller/odom", Odometry, queue_size=5)
         rospy.Subscriber("/autonomy/path", PathMsg, self.on_path, queue_size=1)
         rospy.Subscriber("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
+        if self.pose_topic:
+            rospy.Subscriber(self.pose_topic, Odometry, self.on_pose, queue_size=10)
         rospy.Service("~set_state", SetControllerState, self.on_set_state)
         rospy.Timer(rospy.Duration(1.0 / self.config.setpoint_rate_hz), self.on_timer)
 
@@ -135,7 +150,7 @@ class WaypointControllerNode:
             now_wall = time.monotonic()  # the wall floor under every timeout (see core.controller)
             self.link.poll(now, now_wall)
             telemetry = self.link.telemetry()
-            actions = self.core.step(now, telemetry, now_wall)
+            actions = self.core.step(now, telemetry, now_wall, self._pose_check(now, now_wall))
             try:
                 self.link.execute(actions, now)
             except InvalidInputError as err:  # the core never emits these; the shell double-checks
@@ -165,6 +180,23 @@ class WaypointControllerNode:
                     capacity_mah=self.config.battery_capacity_mah,
                 )
             )
+
+    def on_pose(self, msg: Odometry) -> None:
+        """The watched pose: finite and fresh, or the reason it is not (judged on arrival, both clocks)."""
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        values = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+        with self._lock:
+            assert self.pose_watchdog is not None
+            if all(math.isfinite(v) for v in values):
+                self.pose_watchdog.valid(msg.header.stamp.to_sec(), rospy.get_time(), time.monotonic())
+            else:
+                self.pose_watchdog.invalid(f"a message with NaN/inf at {msg.header.stamp.to_sec():.2f} s")
+
+    def _pose_check(self, now: float, now_wall: float) -> PoseCheck | None:
+        if self.pose_watchdog is None:
+            return None
+        state, reason = self.pose_watchdog.state(now, now_wall)
+        return PoseCheck(state == EstimateState.OK, reason, f"pose estimate on {self.pose_topic}")
 
     def _publish_odometry(self, now: float) -> None:
         rate = self.config.odom_rate_hz
@@ -231,8 +263,9 @@ def _run() -> None:
     if params.connection_url:
         overrides["connection_url"] = params.connection_url
     config = autonomy_section(ControllerConfig, "controller", params.config, overrides)
-    node = WaypointControllerNode(config)
+    node = WaypointControllerNode(config, params.pose_topic)
     node.start()
     rospy.on_shutdown(node.shutdown)
-    rospy.loginfo(f"waypoint_controller: MAVLink on {config.connection_url}")
+    watched = f", stops commanding when the pose on {params.pose_topic} is stale or NaN" if params.pose_topic else ""
+    rospy.loginfo(f"waypoint_controller: MAVLink on {config.connection_url}{watched}")
     rospy.spin()

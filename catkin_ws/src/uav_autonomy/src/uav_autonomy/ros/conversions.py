@@ -27,6 +27,7 @@ from uav_autonomy.core.controller import ControllerStatus
 from uav_autonomy.core.features import Target
 from uav_autonomy.core.grid_geometry import GridSpec
 from uav_autonomy.core.mcdm import GoalDecision
+from uav_autonomy.core.pose_estimate import PoseEstimate
 from uav_autonomy.errors import InvalidInputError
 from uav_autonomy.mavlink.link import OdometryReading
 from uav_common.ros.arrays import image_msg
@@ -285,11 +286,15 @@ def controller_state_msg(status: ControllerStatus, header: Header) -> Controller
     return msg
 
 
-def odometry_msg(odom: OdometryReading, header: Header) -> Odometry:
-    """nav_msgs/Odometry ``map -> base_link`` from the autopilot's estimate (covariances unknown: 0)."""
+def odometry_msg(odom: OdometryReading | PoseEstimate, header: Header, child_frame_id: str = "base_link") -> Odometry:
+    """nav_msgs/Odometry ``header.frame_id -> child_frame_id`` from the autopilot's estimate (with its covariances)."""
     msg = Odometry()
     msg.header = header
-    msg.child_frame_id = "base_link"
+    msg.child_frame_id = child_frame_id
+    if odom.pose_covariance:
+        msg.pose.covariance = list(odom.pose_covariance)
+    if odom.twist_covariance:
+        msg.twist.covariance = list(odom.twist_covariance)
     p = msg.pose.pose.position
     p.x, p.y, p.z = odom.position_enu_m
     w, x, y, z = odom.q_enu_flu_wxyz

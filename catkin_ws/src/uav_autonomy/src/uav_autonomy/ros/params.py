@@ -18,11 +18,22 @@ from uav_common.config import config_errors_as
 from uav_common.paths import config_file
 from uav_common.ros.params import load_section
 
-__all__ = ["ControllerParams", "FeatureParams", "GoalSelectorParams", "PlannerParams", "autonomy_section"]
+__all__ = [
+    "AUTOPILOT_ODOM",
+    "AutopilotOdometryParams",
+    "ControllerParams",
+    "FeatureParams",
+    "GoalSelectorParams",
+    "PlannerParams",
+    "RobotDescriptionParams",
+    "autonomy_section",
+]
 
 T = TypeVar("T")
 
 GROUND_TRUTH_ODOM = "/uav/ground_truth/odom"
+#: Where ``autopilot_odometry`` publishes the autopilot's estimate (``pose_source: autopilot``).
+AUTOPILOT_ODOM = "/uav/autopilot/odom"
 
 
 def autonomy_section(cls: type[T], section: str, config: str, overrides: Mapping[str, Any]) -> T:
@@ -71,3 +82,22 @@ class ControllerParams:
     config: str = ""
     overrides: dict[str, Any] = field(default_factory=dict)
     connection_url: str = ""
+    #: The odometry the rest of the autonomy plans on (""= not watched): stale or NaN there stops commanding.
+    pose_topic: str = ""
+
+
+@dataclass(frozen=True)
+class AutopilotOdometryParams:
+    """``autopilot_odometry``'s private parameters (``connection_url``, when set, wins over the file's)."""
+
+    config: str = ""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    connection_url: str = ""
+    odom_topic: str = AUTOPILOT_ODOM
+
+
+@dataclass(frozen=True)
+class RobotDescriptionParams:
+    """``robot_description``'s private parameters: the robot description file (""= ``config/robot.yaml``)."""
+
+    file: str = ""

@@ -34,7 +34,7 @@ from typing import Any, TextIO
 from uav_common.config import ConfigError
 from uav_common.errors import ResourceError
 from uav_common.exit_codes import ExitCode
-from uav_common.paths import runs_dir
+from uav_common.paths import config_dir, runs_dir
 from uav_common.shell.processes import LoggedProcess, free_port, free_udp_port, wait_for_port
 from uav_scenarios.core.config import Scenario, TimeMode, TimeSpec, effective_yaml, load_scenario
 from uav_scenarios.core.launch import RunPorts
@@ -66,6 +66,7 @@ def allocate_ports(fixed: dict[str, str]) -> RunPorts:
         "sim": free_udp_port(),
         "router_tcp": free_port(),
         "controller": free_udp_port(),
+        "odometry": free_udp_port(),
         "adhoc": free_udp_port(),
         "gcs": 14550,
         "mavsdk": 14541,
@@ -188,6 +189,13 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--run-dir", type=Path, help="exact run folder (default: RUNS_DIR/<name>-<time>)")
     p.add_argument("--port", action="append", default=[], metavar="NAME=PORT", help="fix a port (see docs)")
+    p.add_argument(
+        "--stress",
+        action="append",
+        default=[],
+        metavar="PRESET",
+        help="lay a stress preset over the scenario (config/stress/PRESET.yaml, or a path); repeatable, in order",
+    )
     p.add_argument("--world-cache-dir", default="", help="world cache folder (default: the bridge's)")
     p.add_argument(
         "--environment", metavar="PRESET", help="run under this environment preset (config/environments/PRESET.yaml)"
@@ -225,7 +233,8 @@ def _checked(scenario: Scenario, args: argparse.Namespace) -> Scenario:
 def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:
     args = _parse(argv)
     try:
-        scenario = _overrides(load_scenario(args.scenario), args)
+        stress = tuple(args.stress)
+        scenario = _overrides(load_scenario(args.scenario, stress=stress, stress_dir=config_dir() / "stress"), args)
         fixed = dict(item.split("=", 1) for item in args.port)
         allocate_ports(fixed)
         presets: list[str] = []
@@ -337,6 +346,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, ports: RunPorts, out: Tex
     cmd = [
         "roslaunch", "-p", str(master_port), "uav_scenarios", launch,
         f"scenario:={scenario_path}", f"run_dir:={run_dir}", f"depth_source:={scenario.depth_source.value}",
+        f"pose_source:={scenario.pose_source.value}", f"odometry_port:={ports.odometry}",
         f"record:={'true' if scenario.recording.enabled else 'false'}",
         f"world_cache_dir:={args.world_cache_dir}",
         f"sitl_tcp_port:={ports.sitl_tcp}", f"sim_port:={ports.sim}", f"router_tcp_port:={ports.router_tcp}",
@@ -350,11 +360,14 @@ def _run(scenario: Scenario, args: argparse.Namespace, ports: RunPorts, out: Tex
     out.write(f"run folder: {run_dir}\n")
     out.write(
         f"scenario {scenario.name} ({scenario.mission.value}, {scenario.strategy.value}), "
-        f"{scenario.stop.time_limit_s:g} s simulated, time {scenario.time.mode.value}; "
+        f"{scenario.stop.time_limit_s:g} s simulated, time {scenario.time.mode.value}, "
+        f"pose from {scenario.pose_source.value}"
+        f"{'; stress ' + ', '.join(scenario.stress_applied) if scenario.stress_applied else ''}; "
         f"ROS master :{master_port}, GCS udp:{ports.gcs}\n"
     )
     out.flush()
-    proc = LoggedProcess("roslaunch", cmd, log_path=launch_log, env=env)
+    # SIGINT to roslaunch if uav-run itself dies (killed, or its campaign worker gone): the run stops cleanly.
+    proc = LoggedProcess("roslaunch", cmd, log_path=launch_log, env=env, parent_death_signal=signal.SIGINT)
     interrupted = False
 
     def on_signal(_sig: int, _frame: Any) -> None:

@@ -9,6 +9,10 @@ from the same file.
 
 Relative paths inside a scenario file are relative to the file's own folder.
 Positions are metres in the ``map`` frame (ENU, origin = home on the ground).
+
+Stress presets (``config/stress/*.yaml``) are partial scenarios laid over a scenario before it is
+parsed: ``stress: [lossy_link]`` in the file (or ``uav-run --stress lossy_link``) merges each preset
+over it, key by key, in order; the effective scenario records them under ``stress_applied``.
 """
 
 from __future__ import annotations
@@ -20,17 +24,23 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from uav_common.config import config_errors_as, load_config
+from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
+from uav_common.validate import require_in_range
 from uav_scenarios.errors import ScenarioConfigError
 from uav_sim_bridge.core.motion import ActorsConfig
 
 __all__ = [
+    "LINK_ENDPOINTS",
     "AutonomySpec",
     "DepthSource",
+    "FaultSpec",
+    "LinkImpairmentSpec",
+    "LinkSpec",
     "MapBackend",
     "MapSpec",
     "MissionKind",
     "PersonSpec",
+    "PoseSource",
     "RecordingSpec",
     "Scenario",
     "ScoringSpec",
@@ -40,8 +50,10 @@ __all__ = [
     "TargetSpec",
     "TimeMode",
     "TimeSpec",
+    "WindSpec",
     "WorldSpec",
     "effective_yaml",
+    "estimate_topic",
     "load_scenario",
     "played_topics",
     "recorded_topics",
@@ -80,6 +92,22 @@ class MapBackend(enum.Enum):
 class DepthSource(enum.Enum):
     GROUND_TRUTH = "ground_truth"
     ESTIMATED = "estimated"
+
+
+class PoseSource(enum.Enum):
+    """Where the map, features, planner and depth estimator take the vehicle's pose from."""
+
+    #: The simulator's exact pose (``/uav/ground_truth/odom`` and its ``map -> base_link`` tf).
+    GROUND_TRUTH = "ground_truth"
+    #: The autopilot's own estimate over MAVLink (``autopilot_odometry``: ``/uav/autopilot/odom`` and
+    #: ``map -> odom -> base_link``), as on a real vehicle.
+    AUTOPILOT = "autopilot"
+
+
+#: The odometry topic of each pose source.
+POSE_TOPICS = {PoseSource.GROUND_TRUTH: "/uav/ground_truth/odom", PoseSource.AUTOPILOT: "/uav/autopilot/odom"}
+#: The autopilot_odometry node's status topic.
+ESTIMATE_STATUS_TOPIC = "/autopilot_odometry/status"
 
 
 def _check_polygon(name: str, polygon: tuple[Point2, ...]) -> None:
@@ -235,6 +263,122 @@ class SearchSpec:
             raise ValueError(msg)
 
 
+#: Router endpoints of a run whose radio link a scenario can make lossy (docs/mavlink_router.md).
+LINK_ENDPOINTS = ("gcs", "controller", "mavsdk", "odometry", "adhoc")
+
+
+@dataclass(frozen=True)
+class LinkImpairmentSpec:
+    """One endpoint's link as a telemetry radio (the router's ``LossPercent``... keys, docs/mavlink_router.md)."""
+
+    #: Frames lost, percent (each direction).
+    loss_pct: float = 0.0
+    #: Mean length of a loss burst in frames (0 = independent losses; fades need >= 1).
+    loss_burst: float = 0.0
+    delay_ms: float = 0.0
+    jitter_ms: float = 0.0
+    reorder_pct: float = 0.0
+    reorder_delay_ms: float = 50.0
+    #: ``both``, ``in`` (frames from the endpoint to the vehicle) or ``out`` (frames to the endpoint).
+    direction: Literal["both", "in", "out"] = "both"
+
+    def __post_init__(self) -> None:
+        require_in_range("loss_pct", self.loss_pct, 0.0, 100.0)
+        require_in_range("reorder_pct", self.reorder_pct, 0.0, 100.0)
+        for name in ("delay_ms", "jitter_ms", "reorder_delay_ms"):
+            require_in_range(name, getattr(self, name), 0.0, 60_000.0)
+        require_in_range("loss_burst", self.loss_burst, 0.0, 1e6)
+        if self.loss_burst > 0.0 and 0.0 < self.loss_pct < 100.0:
+            least = max(1.0, self.loss_pct / (100.0 - self.loss_pct))
+            if self.loss_burst < least:
+                msg = (
+                    f"loss_burst must be 0 (independent losses) or >= {least:.3g} frames for loss_pct {self.loss_pct:g}"
+                )
+                raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    """Lossy MAVLink links of the run (through the router): per endpoint, seeded."""
+
+    seed: int = 0
+    #: Endpoint name (:data:`LINK_ENDPOINTS`) -> its link (``odometry`` exists only with ``pose_source: autopilot``;
+    #: without it that entry changes nothing).
+    endpoints: dict[str, LinkImpairmentSpec] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.endpoints) - set(LINK_ENDPOINTS))
+        if unknown:
+            msg = f"endpoints: unknown endpoint(s) {unknown}; the run's router has {', '.join(LINK_ENDPOINTS)}"
+            raise ValueError(msg)
+        if self.seed < 0:
+            msg = f"seed must be >= 0, got {self.seed}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class WindSpec:
+    """Mean wind and turbulence (issue 23 part B: the SITL does not simulate them yet; a scenario with
+    ``wind`` is refused with that reason)."""
+
+    #: Mean wind speed at ``reference_height_m``.
+    speed_mps: float = 0.0
+    #: Where the wind blows *from*, degrees clockwise from north (meteorological).
+    from_deg: float = 0.0
+    reference_height_m: float = 10.0
+    #: Power-law exponent of the speed's growth with height (0 = the same at every height; ~0.14 open country).
+    shear_exponent: float = 0.0
+    #: Turbulence (Dryden, MIL-F-8785C intensities): none, light, moderate or severe.
+    turbulence: Literal["none", "light", "moderate", "severe"] = "none"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        require_in_range("speed_mps", self.speed_mps, 0.0, 40.0)
+        require_in_range("from_deg", self.from_deg, 0.0, 360.0)
+        require_in_range("reference_height_m", self.reference_height_m, 1.0, 500.0)
+        require_in_range("shear_exponent", self.shear_exponent, 0.0, 1.0)
+
+
+#: MAVLink FAILURE_UNIT names (MAV_CMD_INJECT_FAILURE) a fault may name.
+FAULT_UNITS = (
+    "gyro", "accel", "mag", "baro", "gps", "optical_flow", "vio", "distance_sensor", "airspeed",
+    "battery", "motor", "servo", "avoidance", "rc_signal", "mavlink_signal", "camera_nadir", "camera_forward",
+)  # fmt: skip
+#: MAVLink FAILURE_TYPE names.
+FAULT_TYPES = ("ok", "off", "stuck", "garbage", "wrong", "slow", "delayed", "intermittent")
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """A fault injected in flight, as PX4's ``MAV_CMD_INJECT_FAILURE`` does (issue 23 part B: the SITL does not
+    inject faults yet; a scenario with ``faults`` is refused with that reason)."""
+
+    at_s: float
+    unit: str
+    #: A :data:`FAULT_TYPES` name (YAML reads a bare ``off`` as false: taken as ``off``).
+    type: str | bool
+    #: Which instance (motor number, 1-based; 0 = all).
+    instance: int = 0
+    #: Then back to ``ok`` (null: for the rest of the run).
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        require_in_range("at_s", self.at_s, 0.0, 1e6)
+        if self.type is False:
+            object.__setattr__(self, "type", "off")
+        if self.unit not in FAULT_UNITS:
+            msg = f"unit: unknown fault unit {self.unit!r}; known: {', '.join(FAULT_UNITS)}"
+            raise ValueError(msg)
+        if self.type not in FAULT_TYPES:
+            msg = f"type: unknown fault type {self.type!r}; known: {', '.join(FAULT_TYPES)}"
+            raise ValueError(msg)
+        if not 0 <= self.instance <= 255:
+            msg = f"instance must be in [0, 255], got {self.instance}"
+            raise ValueError(msg)
+        if self.duration_s is not None:
+            require_in_range("duration_s", self.duration_s, 0.0, 1e6)
+
+
 @dataclass(frozen=True)
 class StopCriteria:
     """The run stops at the first criterion met. Times are simulation seconds."""
@@ -380,6 +524,18 @@ class Scenario:
     world: WorldSpec = field(default_factory=WorldSpec)
     map: MapSpec = field(default_factory=MapSpec)
     depth_source: DepthSource = DepthSource.GROUND_TRUTH
+    #: Where the map, features, planner and depth estimator take the pose from.
+    pose_source: PoseSource = PoseSource.GROUND_TRUTH
+    #: Lossy MAVLink links through the router.
+    link: LinkSpec = field(default_factory=LinkSpec)
+    #: Mean wind and turbulence (not yet simulated: refused).
+    wind: WindSpec | None = None
+    #: Faults injected in flight (not yet simulated: refused).
+    faults: tuple[FaultSpec, ...] = ()
+    #: Stress presets to lay over this scenario when it is loaded (names of config/stress/*.yaml or paths).
+    stress: tuple[str, ...] = ()
+    #: The presets already laid over it (written into an effective scenario; not applied again).
+    stress_applied: tuple[str, ...] = ()
     autonomy: AutonomySpec = field(default_factory=AutonomySpec)
     search: SearchSpec | None = None
     stop: StopCriteria = field(default_factory=StopCriteria)
@@ -418,6 +574,13 @@ class Scenario:
                     f"there; it cannot have motion {motion}"
                 )
                 raise ValueError(msg)
+        not_yet = "is not yet simulated by the SITL (issue 23, part B, lands after the SITL rework)"
+        if self.wind is not None:
+            msg = f"wind: wind and turbulence {not_yet}; remove the key (or the stress preset that sets it)"
+            raise ValueError(msg)
+        if self.faults:
+            msg = f"faults: in-flight fault injection {not_yet}; remove the key (or the stress preset that sets it)"
+            raise ValueError(msg)
 
     @property
     def world_config_path(self) -> Path:
@@ -425,6 +588,11 @@ class Scenario:
         if self.world.config.is_absolute() or self.source is None:
             return self.world.config
         return (self.source.parent / self.world.config).resolve()
+
+
+def estimate_topic(scenario: Scenario) -> str:
+    """The odometry topic the map, features, planner and controller use (its ``pose_source``)."""
+    return POSE_TOPICS[scenario.pose_source]
 
 
 def replay_inputs(scenario: Scenario) -> tuple[str, ...]:
@@ -461,6 +629,8 @@ def played_topics(scenario: Scenario) -> tuple[str, ...]:
     """What ``rosbag play`` publishes in a replay (the map server, the evaluators, the tracker and the
     scorer regenerate everything else)."""
     topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
+    if scenario.pose_source is PoseSource.AUTOPILOT:
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
     if scenario.search is not None and scenario.search.detection_topic not in topics:
         topics.append(scenario.search.detection_topic)
     return tuple(topics)
@@ -470,6 +640,8 @@ def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     """The topic list for ``rosbag record`` (presets are cumulative: replay includes report)."""
     spec = scenario.recording
     topics = list(RECORDING_PRESETS["report"])
+    if scenario.pose_source is PoseSource.AUTOPILOT:
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
     if scenario.search is not None and scenario.search.detection_topic not in topics:
         topics.append(scenario.search.detection_topic)
     if spec.preset == "replay":
@@ -488,24 +660,82 @@ def effective_yaml(scenario: Scenario, note: str = "") -> str:
     data = to_mapping(scenario)
     data.pop("source", None)
     data["world"]["config"] = str(scenario.world_config_path)
+    data["stress"] = []  # already laid over it (stress_applied says which): never twice
     header = f"# Effective scenario of a run (from {scenario.source}{note}).\n"
     return header + yaml.safe_dump(data, sort_keys=False)
 
 
-def load_scenario(path: Path, *, overrides: dict[str, Any] | None = None) -> Scenario:
-    """Parse and validate a scenario file.
+#: Keys a stress preset may not set: it stresses a scenario, it does not make another one.
+_NOT_IN_STRESS = ("name", "mission", "strategy", "stress", "stress_applied", "source")
+
+
+def stress_path(name: str, scenario_file: Path, stress_dir: Path | None) -> Path:
+    """Where the stress preset ``name`` is: a path (it has a ``/`` or ends in ``.yaml``) relative to the scenario
+    file's folder, else ``<stress_dir>/<name>.yaml`` (default: the ``stress`` folder next to the scenario's
+    folder, i.e. ``config/stress`` for ``config/scenarios/*.yaml``)."""
+    if "/" in name or name.endswith(".yaml"):
+        candidate = Path(name).expanduser()
+        return candidate if candidate.is_absolute() else scenario_file.parent / candidate
+    folder = stress_dir if stress_dir is not None else scenario_file.resolve().parent.parent / "stress"
+    return folder / f"{name}.yaml"
+
+
+def apply_stress(
+    data: dict[str, Any], names: tuple[str, ...], scenario_file: Path, stress_dir: Path | None
+) -> dict[str, Any]:
+    """``data`` (a scenario mapping) with each preset merged over it in order (see the module docstring).
+
+    Raises:
+        ScenarioConfigError: a preset is missing, not a mapping, or sets a key a preset may not set.
+    """
+    out = dict(data)
+    for name in names:
+        path = stress_path(name, scenario_file, stress_dir)
+        if not path.is_file():
+            folder = path.parent
+            known = sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
+            msg = f"{scenario_file}: stress: no preset {name!r} (looked for {path}); presets there: {known or 'none'}"
+            raise ScenarioConfigError(msg)
+        with config_errors_as(ScenarioConfigError):
+            overlay = load_yaml_mapping(path)
+        bad = [k for k in _NOT_IN_STRESS if k in overlay]
+        if bad:
+            msg = f"{path}: a stress preset may not set {bad} (it overlays a scenario)"
+            raise ScenarioConfigError(msg)
+        out = deep_merge(out, overlay)
+    return out
+
+
+def load_scenario(
+    path: Path,
+    *,
+    overrides: dict[str, Any] | None = None,
+    stress: tuple[str, ...] = (),
+    stress_dir: Path | None = None,
+) -> Scenario:
+    """Parse and validate a scenario file, with its stress presets (and ``stress``) laid over it.
 
     Args:
         path: the YAML file.
         overrides: top-level field replacements applied after parsing
             (e.g. ``{"stop": StopCriteria(time_limit_s=30)}`` from a command line).
+        stress: more stress presets, after the file's own (e.g. ``uav-run --stress``).
+        stress_dir: where preset names are looked up (default: see :func:`stress_path`).
 
     Raises:
-        ScenarioConfigError: the file is missing, not YAML, has an unknown key, a wrong type
+        ScenarioConfigError: the file or a preset is missing, not YAML, has an unknown key, a wrong type
             or an inconsistent setting; the message names the file and the key.
     """
     with config_errors_as(ScenarioConfigError):
-        scenario = load_config(Scenario, path)
+        data = load_yaml_mapping(path)
+        names = tuple(_as_names(data.get("stress", ()), path)) + tuple(stress)
+        source = str(path)
+        if names:
+            data = apply_stress(data, names, path, stress_dir)
+            data["stress"] = []
+            data["stress_applied"] = [*_as_names(data.get("stress_applied", ()), path), *names]
+            source = f"{path} with stress {', '.join(names)}"
+        scenario = from_mapping(Scenario, data, source=source)
     if scenario.source is not None:
         msg = f"{path}: 'source' is set by the loader, remove it from the file"
         raise ScenarioConfigError(msg)
@@ -523,3 +753,13 @@ def load_scenario(path: Path, *, overrides: dict[str, Any] | None = None) -> Sce
             msg = f"{path}: invalid override {sorted(overrides)}: {err}"
             raise ScenarioConfigError(msg) from err
     return scenario
+
+
+def _as_names(value: Any, path: Path) -> list[str]:
+    """``stress:`` as a list of names (a single name is accepted too)."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+        return list(value)
+    msg = f"{path}: stress: expected a preset name or a list of them, got {value!r}"
+    raise ScenarioConfigError(msg)

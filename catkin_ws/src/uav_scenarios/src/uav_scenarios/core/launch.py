@@ -6,8 +6,10 @@ started by ``roslaunch`` and one started by ``uav-run`` are the same run.
 
 Ports (every one settable; tests use free ones): the SITL's TCP server (the router
 connects), its simulation link (the bridge connects), and the router's endpoints
-(GCS, controller, MAVSDK, ad-hoc UDP server, TCP server). With the router, the SITL's
-own GCS and API UDP links are switched off (``docs/architecture.md``).
+(GCS, controller, MAVSDK, the autopilot odometry node with ``pose_source: autopilot``,
+ad-hoc UDP server, TCP server). With the router, the SITL's own GCS and API UDP links
+are switched off (``docs/architecture.md``). The scenario's ``link`` section makes
+endpoints lossy (the router's ``LossPercent``... keys).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from uav_scenarios.core.config import Scenario, TimeMode
+from uav_scenarios.core.config import LinkImpairmentSpec, PoseSource, Scenario, TimeMode
 from uav_scenarios.errors import ScenarioError
 
 __all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv"]
@@ -35,6 +37,7 @@ class RunPorts:
     controller: int = 14540
     mavsdk: int = 14541
     adhoc: int = 14555
+    odometry: int = 14542
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -120,12 +123,36 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
     return argv
 
 
-def router_conf(ports: RunPorts, log_dir: Path | None) -> str:
+#: What the autopilot odometry node reads (the router sends it nothing else: no decoding work for it):
+#: HEARTBEAT, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, COMMAND_ACK, TIMESYNC, STATUSTEXT, ODOMETRY.
+ODOMETRY_MESSAGES = (0, 31, 32, 77, 111, 253, 331)
+
+
+def link_lines(spec: LinkImpairmentSpec, seed: int) -> list[str]:
+    """A lossy link as router configuration keys (docs/mavlink_router.md)."""
+    return [
+        f"LossPercent = {spec.loss_pct:g}",
+        f"LossBurst = {spec.loss_burst:g}",
+        f"DelayMs = {spec.delay_ms:g}",
+        f"JitterMs = {spec.jitter_ms:g}",
+        f"ReorderPercent = {spec.reorder_pct:g}",
+        f"ReorderDelayMs = {spec.reorder_delay_ms:g}",
+        f"LinkDirection = {spec.direction}",
+        f"LinkSeed = {seed}",
+    ]
+
+
+def router_conf(ports: RunPorts, log_dir: Path | None, scenario: Scenario | None = None) -> str:
     """A ``uav-mavlink-router`` configuration (mavlink-routerd INI) for these ports.
 
     Same endpoints as ``config/router.conf``: the SITL's TCP server, a GCS, the
-    controller and MAVSDK as UDP clients, an ad-hoc UDP server and a TCP server.
+    controller and MAVSDK as UDP clients, an ad-hoc UDP server and a TCP server; with
+    ``pose_source: autopilot`` also the autopilot odometry node's. The scenario's ``link``
+    section makes the endpoints it names lossy.
     """
+    links = scenario.link.endpoints if scenario is not None else {}
+    seed = scenario.link.seed if scenario is not None else 0
+    odometry = scenario is not None and scenario.pose_source is PoseSource.AUTOPILOT
     lines = [
         "# Written by the scenario launcher for one run (see config/router.conf for the defaults).",
         "[General]",
@@ -144,7 +171,16 @@ def router_conf(ports: RunPorts, log_dir: Path | None) -> str:
         f"Port = {ports.sitl_tcp}",
         "RetryTimeout = 2",
     ]
-    for name, port in (("gcs", ports.gcs), ("controller", ports.controller), ("mavsdk", ports.mavsdk)):
+    clients = [("gcs", ports.gcs), ("controller", ports.controller), ("mavsdk", ports.mavsdk)]
+    if odometry:
+        clients.append(("odometry", ports.odometry))
+    for name, port in clients:
         lines += ["", f"[UdpEndpoint {name}]", "Mode = Normal", "Address = 127.0.0.1", f"Port = {port}"]
-    lines += ["", "[UdpEndpoint adhoc]", "Mode = Server", "Address = 0.0.0.0", f"Port = {ports.adhoc}", ""]
-    return "\n".join(lines)
+        if name == "odometry":
+            lines.append("AllowMsgIdOut = " + ",".join(str(m) for m in ODOMETRY_MESSAGES))
+        if name in links:
+            lines += link_lines(links[name], seed)
+    lines += ["", "[UdpEndpoint adhoc]", "Mode = Server", "Address = 0.0.0.0", f"Port = {ports.adhoc}"]
+    if "adhoc" in links:
+        lines += link_lines(links["adhoc"], seed)
+    return "\n".join([*lines, ""])

@@ -22,7 +22,16 @@ import yaml
 from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower
 from uav_autonomy.errors import InvalidInputError
 from uav_common.config import deep_merge, to_mapping
-from uav_scenarios.core.config import FEATURE_NAMES, DepthSource, MissionKind, Scenario, Strategy, TimeMode
+from uav_common.robot import RobotDescription
+from uav_scenarios.core.config import (
+    FEATURE_NAMES,
+    DepthSource,
+    MissionKind,
+    PoseSource,
+    Scenario,
+    Strategy,
+    TimeMode,
+)
 from uav_scenarios.errors import ScenarioError
 from uav_sim_bridge.core.motion import ActorsConfig
 
@@ -98,6 +107,11 @@ def map_server(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     # perception.launch wires the inputs: ground truth -> the map camera's depth and color images (the node
     # back-projects them), estimated depth -> the depth estimator's cloud.
     out["input"] = "rgbd" if scenario.depth_source is DepthSource.GROUND_TRUTH else "cloud"
+    if scenario.pose_source is PoseSource.AUTOPILOT:
+        # The autopilot's estimate (and so the image's transform) reaches the map server after the image: a
+        # median 0.1 simulated s, up to 2 s, in lockstep at ~8x on 2 loaded cores. Room for 2 s of nadir frames
+        # at 5 Hz while they wait (each waits at most tf_wait_s), so they are not dropped as queue_full.
+        out["queue_size"] = 10
     if ctx.run_dir:
         # Each run autosaves into its own folder (parallel runs never share a map file).
         suffix = "ot" if scenario.map.backend.value == "octomap" else "vdb"
@@ -176,6 +190,18 @@ def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     }
 
 
+def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The autopilot odometry node: config/autonomy.yaml's settings, with the SITL's clock shared.
+
+    The SITL's time since boot (ODOMETRY's ``time_usec``) *is* the simulation time ``/clock`` carries, so the
+    stamps need no mapping (``time_sync: shared``). TIMESYNC still runs and its offset is reported: in lockstep
+    ROS time moves in ``time.step_s`` jumps, so TIMESYNC there is only as good as half a step (the rostest of the
+    node checks TIMESYNC against an autopilot whose clock is 1000 s off). ``node_params.autopilot_odometry``
+    overrides this.
+    """
+    return {"time_sync": "shared"}
+
+
 def tracker(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     search = scenario.search
     return {
@@ -191,6 +217,7 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "feature_evaluator": features,
     "path_planner": planner,
     "waypoint_controller": controller,
+    "autopilot_odometry": autopilot_odometry,
     "map_server": map_server,
     "sim_bridge": sim_bridge,
     "mission_manager": mission_manager,
@@ -299,8 +326,11 @@ def sitl_capacity_mah(scenario: Scenario, sitl_config: Path) -> float:
     return float(value) if isinstance(value, int | float) else 4000.0
 
 
-def bridge_cameras(bridge_config: Mapping[str, Any], scenario: Scenario) -> dict[str, dict[str, float]]:
-    """The bridge's cameras for this scenario (its config file with ``node_params.sim_bridge`` merged).
+def bridge_cameras(
+    bridge_config: Mapping[str, Any], scenario: Scenario, robot: RobotDescription | None = None
+) -> dict[str, dict[str, float]]:
+    """The bridge's cameras for this scenario (its config file with ``node_params.sim_bridge`` merged), placed by
+    the robot description (``config/robot.yaml``).
 
     Returns name -> ``{pitch_deg, hfov_deg}`` (mount pitch: 90 = nadir; hfov from ``hfov_deg``, or from
     ``fx`` and ``width`` when the intrinsics are given instead).
@@ -308,14 +338,12 @@ def bridge_cameras(bridge_config: Mapping[str, Any], scenario: Scenario) -> dict
     import math  # noqa: PLC0415
 
     merged = deep_merge(bridge_config, scenario.node_params.get("sim_bridge", {}))
-    cams = merged.get("cameras") or {
-        "nadir": {"mount": {"rpy_deg": [0, 90, 0]}},
-        "forward": {"mount": {"rpy_deg": [0, 25, 0]}},
-    }
+    cams = merged.get("cameras") or {"nadir": {}, "forward": {}}
     out: dict[str, dict[str, float]] = {}
     for name, raw in cams.items():
         cam = raw or {}
-        rpy = (cam.get("mount") or {}).get("rpy_deg") or [0.0, 90.0 if name == "nadir" else 25.0, 0.0]
+        mount = robot.cameras.get(str(name)) if robot is not None else None
+        rpy = list(mount.rpy_deg) if mount is not None else [0.0, 90.0 if name == "nadir" else 25.0, 0.0]
         hfov = cam.get("hfov_deg")
         if hfov is None and cam.get("fx"):
             hfov = math.degrees(2.0 * math.atan(float(cam.get("width", 640)) / 2.0 / float(cam["fx"])))

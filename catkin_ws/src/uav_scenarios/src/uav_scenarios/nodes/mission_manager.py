@@ -18,6 +18,7 @@ Parameters:
     ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
+    ``~pose_source`` (str, ""): likewise for ``pose_source``;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
     recorded topic that has a publisher and is connected to each of them (both ends' ``getBusInfo`` list the
     link; in deterministic runs the bridge holds simulation time instead), so the bag holds the
@@ -338,7 +339,7 @@ class MissionManager:
         self.status_pub.publish(status_msg(rospy.Time.from_sec(now), fields))
 
 
-def launch_mismatch(scenario: Scenario, expect_mission: str, depth_source: str) -> str:
+def launch_mismatch(scenario: Scenario, expect_mission: str, depth_source: str, pose_source: str = "") -> str:
     """Why the launch file and the scenario disagree ("" when they agree)."""
     if expect_mission and expect_mission != scenario.mission.value:
         return (
@@ -350,6 +351,11 @@ def launch_mismatch(scenario: Scenario, expect_mission: str, depth_source: str) 
             f"{scenario.source} says depth_source: {scenario.depth_source.value} but the launch started "
             f"depth_source:={depth_source}; pass depth_source:={scenario.depth_source.value} (uav-run does)"
         )
+    if pose_source and pose_source != scenario.pose_source.value:
+        return (
+            f"{scenario.source} says pose_source: {scenario.pose_source.value} but the launch started "
+            f"pose_source:={pose_source}; pass pose_source:={scenario.pose_source.value} (uav-run does)"
+        )
     return ""
 
 
@@ -360,7 +366,7 @@ def main() -> None:
 def _run() -> None:
     params = node_params(MissionManagerParams, "mission_manager")
     scenario = load_scenario(Path(params.scenario))
-    problem = launch_mismatch(scenario, params.expect_mission, params.depth_source)
+    problem = launch_mismatch(scenario, params.expect_mission, params.depth_source, params.pose_source)
     if problem:
         raise ScenarioConfigError(problem)
     scripted = params.run.scripted

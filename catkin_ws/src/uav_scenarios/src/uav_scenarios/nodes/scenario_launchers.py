@@ -8,7 +8,7 @@ the real program, so roslaunch's SIGINT reaches ``uav-sitl``, ``uav-mavlink-rout
 flushes its log).
 
     sitl SCENARIO --run-dir DIR --port sitl_tcp=5760 --port sim=4560 [--no-router] [--print]
-    mavlink_router --run-dir DIR --port sitl_tcp=5760 --port router_tcp=5790 ... [--print]
+    mavlink_router --run-dir DIR [--scenario SCENARIO] --port sitl_tcp=5760 --port router_tcp=5790 ... [--print]
     scenario_record SCENARIO --run-dir DIR [--print]
     scenario_play SCENARIO BAG [--rate R] [--print]
 
@@ -112,11 +112,13 @@ def router_main() -> None:
     prog = "mavlink_router"
     ours, _ros = _split_ros_args(sys.argv[1:])
     p = _parser(prog, scenario=False)
+    p.add_argument("--scenario", type=Path, help="the run's scenario: its pose_source and lossy links")
     args = p.parse_args(ours)
     ports = _ports(prog, args.port)
+    scenario = _load(prog, args.scenario) if args.scenario else None
     args.run_dir.mkdir(parents=True, exist_ok=True)
     conf = args.run_dir / "router.conf"
-    text = router_conf(ports, args.run_dir / "router")
+    text = router_conf(ports, args.run_dir / "router", scenario)
     if args.print_only:
         sys.stdout.write(text)
     conf.write_text(text)

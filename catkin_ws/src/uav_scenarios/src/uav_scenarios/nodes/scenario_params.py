@@ -25,6 +25,7 @@ import yaml
 from uav_common.config import ConfigError, load_yaml_mapping, to_mapping
 from uav_common.exit_codes import exit_code_for
 from uav_common.paths import config_file
+from uav_common.robot import load_robot_description
 from uav_scenarios.core.config import Scenario, load_scenario
 from uav_scenarios.core.params import (
     RunContext,
@@ -59,7 +60,15 @@ def run_context(
         world_yaml = str(derived_world_yaml(scenario, (cache_dir or DEFAULT_CACHE_DIR).parent / "scenario_worlds"))
     capacity = sitl_capacity_mah(scenario, config_file("sitl.yaml"))
     base = load_yaml_mapping(config_file("map_server.yaml")) if node == "map_server" else {}
-    cameras = bridge_cameras(load_yaml_mapping(config_file("sim_bridge.yaml")), scenario) if node == "scorer" else {}
+    cameras = (
+        bridge_cameras(
+            load_yaml_mapping(config_file("sim_bridge.yaml")),
+            scenario,
+            load_robot_description(config_file("robot.yaml")),
+        )
+        if node == "scorer"
+        else {}
+    )
     return RunContext(
         map_server_base=base,
         cameras=cameras,

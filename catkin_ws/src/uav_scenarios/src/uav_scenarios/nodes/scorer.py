@@ -10,6 +10,9 @@ Subscribes:
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
     ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
     ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
+    with ``pose_source: autopilot``: ``/uav/autopilot/odom`` (nav_msgs/Odometry, the estimate the autonomy flew
+    on: its error against the ground truth) and ``/autopilot_odometry/status`` (uav_msgs/EstimateStatus:
+    its changes of state, e.g. STALE with the reason, are events);
     camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times.
 Publishes:
     ``/scenario/metrics`` (uav_msgs/RunMetrics) at ``scoring.metrics_rate_hz`` (sim time) and once at the end;
@@ -63,6 +66,7 @@ from uav_msgs.msg import (
     ControllerState,
     DepthMetrics,
     DetectionArray,
+    EstimateStatus,
     GoalReason,
     GridLayers,
     MapInsertStats,
@@ -72,7 +76,14 @@ from uav_msgs.msg import (
     TrackArray,
 )
 from uav_msgs.srv import ExportVoxels
-from uav_scenarios.core.config import Scenario, effective_yaml, load_scenario
+from uav_scenarios.core.config import (
+    ESTIMATE_STATUS_TOPIC,
+    PoseSource,
+    Scenario,
+    effective_yaml,
+    estimate_topic,
+    load_scenario,
+)
 from uav_scenarios.core.scoring.metrics import voxel_accuracy, voxel_keys_from_indices
 from uav_scenarios.core.scoring.run import RunScorer, swath_width_m
 from uav_scenarios.core.scoring.types import SceneTruth
@@ -85,6 +96,7 @@ from uav_scenarios.ros.records import (
     controller_from_msg,
     depth_metrics_from_msg,
     detections_from_msg,
+    estimate_status_from_msg,
     goal_from_msg,
     grid_from_msg,
     object_states_from_msg,
@@ -192,6 +204,11 @@ class ScorerNode:
                 )
         sub = rospy.Subscriber
         sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
+        if self.scenario.pose_source is PoseSource.AUTOPILOT:
+            topic = estimate_topic(self.scenario)
+            sub(topic, Odometry, self._feed(pose_from_odometry, "add_estimate"), queue_size=QUEUE)
+            status = self._feed(estimate_status_from_msg, "add_estimate_status")
+            sub(ESTIMATE_STATUS_TOPIC, EstimateStatus, status, queue_size=QUEUE)
         sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
         # numpy_msg: the float32[] of big grids deserialises into an array, not a Python tuple.
         sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)

@@ -29,6 +29,7 @@ class MissionManagerParams:
     controller: str = "/waypoint_controller"
     expect_mission: str = ""
     depth_source: str = ""
+    pose_source: str = ""
     wait_for_recorder: bool = False
     shutdown_on_stop: bool = True
     linger_s: float = 1.0

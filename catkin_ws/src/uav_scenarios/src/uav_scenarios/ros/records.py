@@ -23,6 +23,7 @@ from uav_scenarios.core.scoring.types import (
     DepthMetricsSample,
     Detection,
     DetectionFrame,
+    EstimateStatusSample,
     GoalSample,
     GridSnapshot,
     PoseSample,
@@ -37,6 +38,7 @@ __all__ = [
     "controller_from_msg",
     "depth_metrics_from_msg",
     "detections_from_msg",
+    "estimate_status_from_msg",
     "goal_from_msg",
     "grid_from_msg",
     "image_from_msg",
@@ -169,6 +171,24 @@ def controller_from_msg(msg: Any, t_s: float | None = None) -> ControllerSample:
         autopilot_mode=str(msg.autopilot_mode),
         armed=bool(msg.armed),
         in_air=bool(msg.in_air),
+        last_event=str(getattr(msg, "last_event", "")),
+    )
+
+
+def estimate_status_from_msg(msg: Any) -> EstimateStatusSample:
+    """``uav_msgs/EstimateStatus`` -> estimate status sample."""
+    return EstimateStatusSample(
+        t_s=stamp_s(msg.header.stamp),
+        state=str(msg.state),
+        reason=str(msg.reason),
+        source=str(msg.source),
+        time_sync=str(msg.time_sync),
+        time_offset_s=float(msg.time_offset_s),
+        published=int(msg.published),
+        invalid=int(msg.invalid),
+        late=int(msg.late),
+        out_of_order=int(msg.out_of_order),
+        covariance_from_autopilot=bool(msg.covariance_from_autopilot),
     )
 
 

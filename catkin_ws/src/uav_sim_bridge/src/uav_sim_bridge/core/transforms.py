@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from uav_common.robot import OPTICAL_FROM_FLU as ROBOT_OPTICAL_FROM_FLU
 from uav_common.rotations import matrix_from_quat, quat_from_euler, quat_from_matrix
 
 FloatArray = npt.NDArray[np.float64]
@@ -29,14 +30,8 @@ __all__ = [
 ]
 
 # Axes of an optical frame (x right, y down, z forward) expressed in the FLU camera
-# frame it is attached to (x forward, y left, z up): R_flu_optical.
-OPTICAL_FROM_FLU: FloatArray = np.array(
-    [
-        [0.0, 0.0, 1.0],
-        [-1.0, 0.0, 0.0],
-        [0.0, -1.0, 0.0],
-    ]
-)
+# frame it is attached to (x forward, y left, z up): R_flu_optical (the robot description's).
+OPTICAL_FROM_FLU: FloatArray = ROBOT_OPTICAL_FROM_FLU
 
 
 def rotation_from_rpy(roll_rad: float, pitch_rad: float, yaw_rad: float) -> FloatArray:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 from uav_common.config import config_errors_as, load_config
+from uav_common.validate import require_non_negative, require_positive
 from uav_sim_bridge.errors import SimBridgeConfigError
 
 __all__ = [
@@ -56,18 +57,6 @@ class ObjectClass(enum.IntEnum):
             raise ValueError(msg) from err
 
 
-def _positive(name: str, value: float) -> None:
-    if not value > 0:
-        msg = f"{name} must be > 0, got {value}"
-        raise ValueError(msg)
-
-
-def _non_negative(name: str, value: float) -> None:
-    if value < 0:
-        msg = f"{name} must be >= 0, got {value}"
-        raise ValueError(msg)
-
-
 @dataclass(frozen=True)
 class TerrainConfig:
     """Heightfield: generated valley-and-hills, or a user heightmap image.
@@ -93,8 +82,8 @@ class TerrainConfig:
     home_pad_radius_m: float = 20.0
 
     def __post_init__(self) -> None:
-        _positive("size_m", self.size_m)
-        _positive("resolution_m", self.resolution_m)
+        require_positive("size_m", self.size_m)
+        require_positive("resolution_m", self.resolution_m)
         if self.size_m / self.resolution_m > 4096:
             msg = f"size_m / resolution_m = {self.size_m / self.resolution_m:.0f} cells per side; the limit is 4096"
             raise ValueError(msg)
@@ -105,8 +94,8 @@ class TerrainConfig:
             msg = "heightmap_max_m must be >= heightmap_min_m"
             raise ValueError(msg)
         for name in ("hill_height_m", "valley_meander_m", "roughness_m", "home_pad_radius_m"):
-            _non_negative(name, getattr(self, name))
-        _positive("valley_width_m", self.valley_width_m)
+            require_non_negative(name, getattr(self, name))
+        require_positive("valley_width_m", self.valley_width_m)
 
 
 @dataclass(frozen=True)
@@ -121,12 +110,12 @@ class RoadsConfig:
     grid_m: float = 10.0
 
     def __post_init__(self) -> None:
-        _non_negative("villages", self.villages)
-        _positive("width_m", self.width_m)
-        _non_negative("extra_links", self.extra_links)
-        _non_negative("exits", self.exits)
-        _positive("min_village_spacing_m", self.min_village_spacing_m)
-        _positive("grid_m", self.grid_m)
+        require_non_negative("villages", self.villages)
+        require_positive("width_m", self.width_m)
+        require_non_negative("extra_links", self.extra_links)
+        require_non_negative("exits", self.exits)
+        require_positive("min_village_spacing_m", self.min_village_spacing_m)
+        require_positive("grid_m", self.grid_m)
 
 
 @dataclass(frozen=True)
@@ -137,11 +126,11 @@ class BuildingsConfig:
     flat_roof_fraction: float = 0.2
 
     def __post_init__(self) -> None:
-        _non_negative("per_village_min", self.per_village_min)
+        require_non_negative("per_village_min", self.per_village_min)
         if self.per_village_max < self.per_village_min:
             msg = "per_village_max must be >= per_village_min"
             raise ValueError(msg)
-        _positive("village_radius_m", self.village_radius_m)
+        require_positive("village_radius_m", self.village_radius_m)
         if not 0.0 <= self.flat_roof_fraction <= 1.0:
             msg = "flat_roof_fraction must be in [0, 1]"
             raise ValueError(msg)
@@ -160,11 +149,11 @@ class ForestConfig:
         if not 0.0 <= self.coverage <= 1.0:
             msg = "coverage must be in [0, 1]"
             raise ValueError(msg)
-        _positive("spacing_m", self.spacing_m)
+        require_positive("spacing_m", self.spacing_m)
         if not 0.0 <= self.conifer_fraction <= 1.0:
             msg = "conifer_fraction must be in [0, 1]"
             raise ValueError(msg)
-        _non_negative("max_trees", self.max_trees)
+        require_non_negative("max_trees", self.max_trees)
 
 
 PERSON_POSES = ("standing", "walking", "sitting", "lying")
@@ -208,7 +197,7 @@ class PeopleConfig:
     wander_radius_m: float = 40.0
 
     def __post_init__(self) -> None:
-        _non_negative("count", self.count)
+        require_non_negative("count", self.count)
         _weights("poses", self.poses, PERSON_POSES)
         if not 1.0 <= self.height_m[0] <= self.height_m[1] <= 2.3:
             msg = f"height_m must be [min, max] within [1.0, 2.3] m, got {list(self.height_m)}"
@@ -217,7 +206,7 @@ class PeopleConfig:
             msg = f"moving must be in [0, count = {self.count}], got {self.moving}"
             raise ValueError(msg)
         _speed_range("speed_mps", self.speed_mps, 4.0)
-        _positive("wander_radius_m", self.wander_radius_m)
+        require_positive("wander_radius_m", self.wander_radius_m)
 
 
 @dataclass(frozen=True)
@@ -231,7 +220,7 @@ class VehiclesConfig:
     speed_mps: tuple[float, float] = (7.0, 13.0)
 
     def __post_init__(self) -> None:
-        _non_negative("count", self.count)
+        require_non_negative("count", self.count)
         _weights("types", self.types, VEHICLE_TYPES)
         if not 0 <= self.moving <= self.count:
             msg = f"moving must be in [0, count = {self.count}], got {self.moving}"
@@ -262,7 +251,7 @@ class CustomObjectConfig:
         if self.object_class in ("terrain", "sky"):
             msg = "custom objects cannot have class terrain or sky"
             raise ValueError(msg)
-        _positive("scale", self.scale)
+        require_positive("scale", self.scale)
         if not all(0.0 <= c <= 1.0 for c in self.color_rgb):
             msg = "color_rgb components must be in [0, 1]"
             raise ValueError(msg)

@@ -4,8 +4,11 @@ ROS interface (names are defaults; remap as usual):
 
 Publishes:
     /clock (rosgraph_msgs/Clock): simulation time of every ground-truth state.
-    /tf: map -> base_link (ground truth, or with seeded pose noise if ``noise.enabled``).
-    /tf_static: base_link -> camera_<cam> (mount) -> camera_<cam>_optical.
+    /tf: map -> base_link (ground truth, or with seeded pose noise if ``noise.enabled``), unless
+        ``~publish_pose_tf`` is false (the pose then comes from the autopilot's estimate: autopilot_odometry).
+    /tf_static: base_link -> camera_<cam> (mount) -> camera_<cam>_optical, from the robot description, unless
+        ``~publish_camera_tf`` is false (scenario runs: the robot_description node publishes them, as on a
+        real vehicle).
     /uav/ground_truth/odom (nav_msgs/Odometry): exact pose in map, twist in base_link.
     /uav/sim_state (uav_msgs/SimState): armed, crashed, lockstep, motors, real-time factor;
         published last for each state, so a lockstep master can wait for it.
@@ -28,6 +31,9 @@ Parameters:
     ~overrides (dict, default {}): deep-merged over the file (e.g. from a scenario).
     ~world, ~world_cache_dir, ~sim_host, ~sim_port, ~local_port, ~lockstep_role (str/int, "" = from file).
     ~cameras (str, "" = all): comma-separated subset of the configured cameras to run.
+    ~robot_description (str, default: the project's config/robot.yaml): the camera mounts (extrinsics) come
+        from this file, the one a real airframe edits; config/sim_bridge.yaml holds the intrinsics only.
+    ~publish_pose_tf, ~publish_camera_tf (bool, default true): see /tf and /tf_static above.
     ~settle (bool, default false), ~settle_root_pid (int, default: our parent, i.e. roslaunch),
     ~settle_timeout_s (float, 10): lockstep master only: before publishing a state's /clock, before
     publishing the rest of it and before granting the next step, wait until every process of the
@@ -66,13 +72,14 @@ from uav_common.config import config_errors_as, deep_merge, from_mapping, load_y
 from uav_common.geo import GeoPoint
 from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
+from uav_common.robot import load_robot_description
 from uav_common.ros.arrays import depth_cloud_msg, image_msg
 from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import SimBridgeConfig, resolve_environment
+from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras, resolve_environment
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
@@ -109,6 +116,9 @@ class BridgeParams:
     world: str = ""
     world_cache_dir: str = ""
     cameras: str = ""
+    robot_description: str = ""
+    publish_pose_tf: bool = True
+    publish_camera_tf: bool = True
     sim_host: str = ""
     sim_port: int | str = ""
     local_port: int | str = ""
@@ -164,6 +174,9 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
                 env["cameras"] = {c: v for c, v in env["cameras"].items() if c in names or c == "default"}
                 data["environment"] = env
         data["environment"] = resolve_environment(data.get("environment"))
+        robot_path = Path(params.robot_description).expanduser() if params.robot_description else None
+        robot = load_robot_description(robot_path or config_file("robot.yaml"))
+        data["cameras"] = mounted_cameras(data.get("cameras"), robot, source=str(path))
         return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
 
 
@@ -246,7 +259,9 @@ class SimBridgeNode:
         self.tracker = SimLinkTracker(sitl_system_id=1, counters=self.counters)
         rospy.loginfo("sim link: local UDP %d -> %s:%d", self.link.local_port, sl.host, sl.port)
         self._make_publishers()
-        self._publish_static()
+        self.publish_pose_tf = params.publish_pose_tf
+        if params.publish_camera_tf:
+            self._publish_static()
         self._requests: queue.Queue[_MoveRequest] = queue.Queue()
         self._service = rospy.Service("~set_object_pose", SetObjectPose, self._on_set_object_pose)
         rospy.set_param("~world_hash", self.world.hash)
@@ -553,7 +568,8 @@ class SimBridgeNode:
         want_det = self.pub_det.get_num_connections() > 0 or not self.cfg.publish.only_when_subscribed
         out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
         cfg = self.cfg
-        self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
+        if self.publish_pose_tf:
+            self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
         self.pub_odom.publish(conv.odometry(state, cfg.map_frame, cfg.base_frame))
         for cam_out in out.cameras:
             self._publish_camera(cam_out.t_capture_s, cam_out)

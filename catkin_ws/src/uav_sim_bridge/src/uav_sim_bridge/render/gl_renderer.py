@@ -202,6 +202,8 @@ class Renderer:
         self._light0 = np.eye(4)
         self._light_depth = (0.0, 1.0)
         self.static_shadow_renders = 0  # how often the static shadow map was rendered (once per sun)
+        self._static_alone_vao: Any = None  # static objects drawn alone (unoccluded_pixel_counts), built lazily
+        self._static_alone_ranges: dict[int, tuple[int, int]] = {}
         self._build_programs()
         self._upload_static()
         self._upload_dynamic()
@@ -827,36 +829,69 @@ class Renderer:
     def unoccluded_pixel_counts(
         self, camera: CameraModel, t_map_optical: RigidTransform, instance_ids: list[int]
     ) -> dict[int, int]:
-        """Pixels each person/vehicle would cover in the frame with nothing else drawn.
+        """Pixels each object would cover in the frame with nothing else drawn.
 
-        Each object is drawn alone into a cleared depth buffer inside an occlusion query,
-        so objects hidden by other people or vehicles count too.  Comparing with the
-        pixels visible in :meth:`render` gives visible fractions.
+        Each object is drawn alone into a cleared depth buffer, twice: the first pass keeps its nearest
+        surface at each pixel, the second counts (occlusion query) the fragments that are that surface, so
+        each pixel counts once however many of the object's own faces overlap there (a person's head over
+        its torso seen from above). Objects hidden by other people or vehicles count too. Comparing with
+        the pixels visible in :meth:`render` gives visible fractions. People and vehicles are drawn at
+        their current poses; static objects (buildings, trees, roads, custom objects) at full detail.
 
         Raises:
-            KeyError: an id is not a person or vehicle of this world.
+            KeyError: an id is not an object of this world (or is the terrain).
         """
         self._check_thread()
         with self.ctx:
             return self._unoccluded(camera, t_map_optical, instance_ids)
 
+    def _static_alone(self) -> tuple[Any, dict[int, tuple[int, int]]]:
+        """An instance-only vertex array of the static objects' full-detail faces sorted by instance, and each
+        instance's (first index, index count) in it; built on first use (most runs never need it)."""
+        if self._static_alone_vao is None:
+            w = self.world
+            cls = w.instance_class[w.face_instance]
+            keep = ~np.isin(cls, [1, 5, 6]) & (w.mesh.face_lod != LOD_FAR)  # not terrain, person, vehicle
+            ids = w.face_instance[keep]
+            order = np.argsort(ids, kind="stable")
+            ids = ids[order]
+            uniq, first, counts = np.unique(ids, return_index=True, return_counts=True)
+            self._static_alone_ranges = {
+                int(i): (int(f) * 3, int(c) * 3) for i, f, c in zip(uniq, first, counts, strict=True)
+            }
+            faces = w.mesh.faces[keep][order].astype("<u4").tobytes()
+            ibo = self.ctx.buffer(faces if faces else b"\0" * 12)
+            self._static_alone_vao = self.ctx.vertex_array(
+                self.iprog, [(self._static_vbo, "3f 24x 1u", "in_pos", "in_inst")], ibo
+            )
+        return self._static_alone_vao, self._static_alone_ranges
+
     def _unoccluded(
         self, camera: CameraModel, t_map_optical: RigidTransform, instance_ids: list[int]
     ) -> dict[int, int]:
         target = self._setup_camera(camera, t_map_optical, shaded=False)
+        draws = []
+        for iid in instance_ids:
+            if iid in self._dyn_ranges:
+                draws.append((self._dyn_ivao, *self._dyn_ranges[iid]))
+                continue
+            vao, ranges = self._static_alone()
+            if iid not in ranges:
+                msg = f"instance {iid} is not an object of this world that can be drawn alone"
+                raise KeyError(msg)
+            draws.append((vao, *ranges[iid]))
         # moderngl cannot release query objects: keep a pool and reuse it every frame.
         while len(self._queries) < len(instance_ids):
             self._queries.append(self.ctx.query(samples=True))
-        for iid, query in zip(instance_ids, self._queries, strict=False):
-            first, count = self._dyn_ranges[iid]
+        for (vao, first, count), query in zip(draws, self._queries, strict=False):
             target.fbo_inst.clear(depth=1.0)
             # An articulated figure overlaps itself (an arm in front of the chest): lay down its depth first,
             # then count only the front-most fragment of each pixel, so every pixel counts once.
             self.ctx.depth_func = "<"
-            self._dyn_ivao.render(self._mgl.TRIANGLES, vertices=count, first=first)
-            self.ctx.depth_func = "<="
+            vao.render(self._mgl.TRIANGLES, vertices=count, first=first)  # depth pre-pass: the nearest surface
+            self.ctx.depth_func = "=="
             with query:
-                self._dyn_ivao.render(self._mgl.TRIANGLES, vertices=count, first=first)
+                vao.render(self._mgl.TRIANGLES, vertices=count, first=first)
         self.ctx.depth_func = "<"
         # Read the results only after every query was issued: each read waits for the GPU (llvmpipe) to finish.
         return {iid: int(q.samples) for iid, q in zip(instance_ids, self._queries, strict=False)}

@@ -21,6 +21,7 @@ from uav_scenarios.errors import ScoringError
 __all__ = [
     "AltitudeStats",
     "BatteryUse",
+    "PoseError",
     "VoxelAccuracy",
     "altitude_stats",
     "band_label",
@@ -32,6 +33,7 @@ __all__ = [
     "mapped_area_m2",
     "match_detections",
     "path_length_m",
+    "pose_error",
     "view_angle_deg",
     "voxel_accuracy",
     "voxel_keys",
@@ -193,6 +195,99 @@ def path_length_m(times_s: npt.ArrayLike, positions_m: npt.ArrayLike) -> float:
         msg = "pose samples go back in time; pass them in time order"
         raise ScoringError(msg)
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+@dataclass(frozen=True)
+class PoseError:
+    """An estimated trajectory against the true one (see :func:`pose_error`); NaN without samples."""
+
+    samples: int
+    position_mean_m: float
+    position_rms_m: float
+    position_p95_m: float
+    position_max_m: float
+    horizontal_rms_m: float
+    vertical_rms_m: float
+    #: Mean of the signed errors (estimate - truth), ENU: a bias shows here.
+    bias_enu_m: tuple[float, float, float]
+    yaw_mean_abs_deg: float
+    yaw_rms_deg: float
+    yaw_p95_deg: float
+    yaw_max_deg: float
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "samples": self.samples,
+            "position_mean_m": self.position_mean_m,
+            "position_rms_m": self.position_rms_m,
+            "position_p95_m": self.position_p95_m,
+            "position_max_m": self.position_max_m,
+            "horizontal_rms_m": self.horizontal_rms_m,
+            "vertical_rms_m": self.vertical_rms_m,
+            "bias_enu_m": list(self.bias_enu_m),
+            "yaw_mean_abs_deg": self.yaw_mean_abs_deg,
+            "yaw_rms_deg": self.yaw_rms_deg,
+            "yaw_p95_deg": self.yaw_p95_deg,
+            "yaw_max_deg": self.yaw_max_deg,
+        }
+
+
+def pose_error(
+    truth_t_s: npt.ArrayLike,
+    truth_xyz_m: npt.ArrayLike,
+    truth_yaw_rad: npt.ArrayLike,
+    *,
+    est_t_s: npt.ArrayLike,
+    est_xyz_m: npt.ArrayLike,
+    est_yaw_rad: npt.ArrayLike,
+    max_gap_s: float = 0.2,
+) -> PoseError:
+    """Error of an estimated trajectory against the true one, at the estimate's own stamps.
+
+    The truth is interpolated linearly (yaw unwrapped) at each estimate stamp; an estimate is scored only
+    where two truth samples at most ``max_gap_s`` apart bracket its stamp (the truth comes at 50 Hz). So a
+    stamp that is off (a bad clock mapping) shows as an error, as it would in the map.
+    """
+    tt = np.asarray(truth_t_s, dtype=np.float64).reshape(-1)
+    tp = np.asarray(truth_xyz_m, dtype=np.float64).reshape(-1, 3)
+    ty = np.unwrap(np.asarray(truth_yaw_rad, dtype=np.float64).reshape(-1)) if tt.size else np.zeros(0)
+    et = np.asarray(est_t_s, dtype=np.float64).reshape(-1)
+    ep = np.asarray(est_xyz_m, dtype=np.float64).reshape(-1, 3)
+    ey = np.asarray(est_yaw_rad, dtype=np.float64).reshape(-1)
+    nan = math.nan
+    empty = PoseError(0, nan, nan, nan, nan, nan, nan, (nan, nan, nan), nan, nan, nan, nan)
+    if tt.size < 2 or et.size == 0:
+        return empty
+    order = np.argsort(tt, kind="stable")
+    tt, tp, ty = tt[order], tp[order], ty[order]
+    k = np.searchsorted(tt, et, side="right")
+    ok = (k > 0) & (k < tt.size)
+    k = np.clip(k, 1, tt.size - 1)
+    t0, t1 = tt[k - 1], tt[k]
+    ok &= (t1 - t0 <= max_gap_s) & (t1 > t0)
+    if not ok.any():
+        return empty
+    k, t0, t1, et, ep, ey = k[ok], t0[ok], t1[ok], et[ok], ep[ok], ey[ok]
+    w = ((et - t0) / (t1 - t0))[:, None]
+    truth_p = tp[k - 1] * (1.0 - w) + tp[k] * w
+    truth_y = ty[k - 1] * (1.0 - w[:, 0]) + ty[k] * w[:, 0]
+    d = ep - truth_p
+    dist = np.linalg.norm(d, axis=1)
+    yaw = np.degrees(np.abs((ey - truth_y + math.pi) % (2.0 * math.pi) - math.pi))
+    return PoseError(
+        samples=int(dist.size),
+        position_mean_m=float(dist.mean()),
+        position_rms_m=float(np.sqrt(np.mean(dist**2))),
+        position_p95_m=float(np.percentile(dist, 95)),
+        position_max_m=float(dist.max()),
+        horizontal_rms_m=float(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2))),
+        vertical_rms_m=float(np.sqrt(np.mean(d[:, 2] ** 2))),
+        bias_enu_m=(float(d[:, 0].mean()), float(d[:, 1].mean()), float(d[:, 2].mean())),
+        yaw_mean_abs_deg=float(yaw.mean()),
+        yaw_rms_deg=float(np.sqrt(np.mean(yaw**2))),
+        yaw_p95_deg=float(np.percentile(yaw, 95)),
+        yaw_max_deg=float(yaw.max()),
+    )
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ from uav_scenarios.core.scoring.metrics import (
     mapped_area_m2,
     match_detections,
     mean_cell_age_s,
+    pose_error,
     view_angle_deg,
     voxel_accuracy,
 )
@@ -39,6 +40,7 @@ from uav_scenarios.core.scoring.types import (
     DepthMetricsSample,
     Detection,
     DetectionFrame,
+    EstimateStatusSample,
     GoalSample,
     GridSnapshot,
     PoseSample,
@@ -53,6 +55,8 @@ __all__ = ["CONTEXTS", "DetectionCounts", "RunScorer", "swath_width_m"]
 #: Context dimensions of the breakdown and the unit of their bands.
 CONTEXTS = {"clutter": "objects", "view_angle": "deg", "range": "m", "altitude": "m"}
 _FRAME_KEY_DIGITS = 4  # stamps are matched to 0.1 ms
+#: Pose estimates are scored at most this often (simulation seconds).
+ESTIMATE_PERIOD_S = 0.1
 
 
 def swath_width_m(altitude_m: float, fov_deg: float) -> float:
@@ -125,6 +129,9 @@ class RunScorer:
     #: The map's voxel size (trail voxels use it until the truth's surface voxels are known).
     spec_resolution_m: float = 0.5
     _poses: list[PoseSample] = field(default_factory=list)
+    #: The pose estimate the autonomy flew on (``pose_source: autopilot``), against ``_poses`` (the truth).
+    _estimates: list[PoseSample] = field(default_factory=list)
+    _estimate_status: EstimateStatusSample | None = None
     _agl: list[float] = field(default_factory=list)
     _distance_m: float = 0.0
     _battery: list[BatterySample] = field(default_factory=list)
@@ -178,6 +185,22 @@ class RunScorer:
             self._distance_m += math.dist(prev.position_m, pose.position_m)
         self._poses.append(pose)
         self._agl.append(self._ground_clearance(pose))
+
+    def add_estimate(self, pose: PoseSample) -> None:
+        """A pose estimate (the autopilot's, as the autonomy used it), scored against the true trajectory."""
+        self._advance(pose.t_s)
+        if self._estimates and pose.t_s - self._estimates[-1].t_s < ESTIMATE_PERIOD_S:
+            return  # 10 samples a second describe the error; the estimate itself comes at 30-50 Hz
+        self._estimates.append(pose)
+
+    def add_estimate_status(self, status: EstimateStatusSample) -> None:
+        """The estimate's state; each change (OK, STALE, INVALID...) is an event with its reason."""
+        self._advance(status.t_s)
+        previous = self._estimate_status
+        if previous is None or previous.state != status.state:
+            why = f": {status.reason}" if status.reason else ""
+            self._events.append((status.t_s, f"pose estimate {status.state}{why}"))
+        self._estimate_status = status
 
     def add_battery(self, sample: BatterySample) -> None:
         self._advance(sample.t_s)
@@ -244,6 +267,8 @@ class RunScorer:
         self._advance(sample.t_s)
         if not self._controller or self._controller[-1].state != sample.state:
             self._events.append((sample.t_s, f"controller {sample.state}"))
+            if sample.state in ("IDLE", "RTL", "LAND") and sample.last_event and self._controller:
+                self._events.append((sample.t_s, f"controller {sample.state} because: {sample.last_event}"))
         self._controller.append(sample)
 
     def add_depth_metrics(self, sample: DepthMetricsSample) -> None:
@@ -469,7 +494,20 @@ class RunScorer:
             "collisions": float(len(self._collisions)),
             "trail_ghost_voxels": float(trail.ghosts) if trail else nan,
             "trail_cleared_voxels": float(trail.cleared) if trail else nan,
+            "pose_error_m": self._latest_pose_error_m(),
         }
+
+    def _latest_pose_error_m(self) -> float:
+        """The error of the latest scored estimate (NaN: none, or no truth around its stamp)."""
+        if not self._estimates:
+            return math.nan
+        e = self._estimates[-1]
+        truth = self._poses[-100:]
+        err = pose_error(
+            [p.t_s for p in truth], [p.position_m for p in truth], [p.yaw_rad for p in truth],
+            est_t_s=[e.t_s], est_xyz_m=[e.position_m], est_yaw_rad=[e.yaw_rad],
+        )  # fmt: skip
+        return err.position_mean_m
 
     def summary(self, now_s: float, *, tracking: bool = True) -> dict[str, Any]:
         """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer).
@@ -549,6 +587,7 @@ class RunScorer:
             "tracking": self._tracking_summary() if tracking or self._tracking_cache is None else self._tracking_cache,
             "depth": self._depth_summary(),
             "moving_objects": self._trail_summary(),
+            "pose_estimate": self._estimate_summary(now_s),
             "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
         }
         return out
@@ -561,6 +600,34 @@ class RunScorer:
         if last is None:
             return {"movers": len(trails.movers), "distance_m": trails.distance_m, "evaluated_t_s": math.nan}
         return {"evaluated_t_s": last.t_s - self.start_t_s, **last.as_dict()}
+
+    def _estimate_summary(self, now_s: float) -> dict[str, Any]:
+        """The estimate the autonomy flew on against the truth (empty samples: ground-truth runs)."""
+        est = [e for e in self._estimates if e.t_s <= now_s]
+        truth = self._poses
+        err = pose_error(
+            [p.t_s for p in truth],
+            [p.position_m for p in truth],
+            [p.yaw_rad for p in truth],
+            est_t_s=[e.t_s for e in est],
+            est_xyz_m=[e.position_m for e in est],
+            est_yaw_rad=[e.yaw_rad for e in est],
+        )
+        st = self._estimate_status
+        stale = sum(1 for _, what in self._events if what.startswith(("pose estimate STALE", "pose estimate INVALID")))
+        return {
+            "estimates": len(est),
+            "error": err.as_dict(),
+            "source": st.source if st else "",
+            "state": st.state if st else "",
+            "time_sync": st.time_sync if st else "",
+            "time_offset_s": st.time_offset_s if st else math.nan,
+            "covariance_from_autopilot": st.covariance_from_autopilot if st else False,
+            "invalid": st.invalid if st else 0,
+            "late": st.late if st else 0,
+            "out_of_order": st.out_of_order if st else 0,
+            "stale_or_invalid_events": stale,
+        }
 
     def _bands(self, name: str) -> tuple[tuple[float, ...], str]:
         spec = self.spec

@@ -24,6 +24,7 @@ __all__ = [
     "DepthMetricsSample",
     "Detection",
     "DetectionFrame",
+    "EstimateStatusSample",
     "GoalSample",
     "GridSnapshot",
     "PoseSample",
@@ -152,6 +153,25 @@ class ControllerSample:
     autopilot_mode: str = ""
     armed: bool = False
     in_air: bool = False
+    #: What last happened (e.g. why it stopped commanding).
+    last_event: str = ""
+
+
+@dataclass(frozen=True)
+class EstimateStatusSample:
+    """The autopilot odometry node's view of the pose estimate (uav_msgs/EstimateStatus)."""
+
+    t_s: float
+    state: str
+    reason: str = ""
+    source: str = ""
+    time_sync: str = ""
+    time_offset_s: float = math.nan
+    published: int = 0
+    invalid: int = 0
+    late: int = 0
+    out_of_order: int = 0
+    covariance_from_autopilot: bool = False
 
 
 @dataclass(frozen=True)

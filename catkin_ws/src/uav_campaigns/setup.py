@@ -1,0 +1,6 @@
+"""catkin_python_setup() entry: the importable package lives in src/uav_campaigns (REP 8)."""
+
+from catkin_pkg.python_setup import generate_distutils_setup
+from setuptools import find_packages, setup
+
+setup(**generate_distutils_setup(packages=find_packages("src"), package_dir={"": "src"}))

@@ -1,0 +1,1 @@
+"""Campaigns: many isolated scenario runs on Dask, a manifest, and the statistics over them (docs/campaigns.md)."""
