@@ -10,7 +10,7 @@ IN_ENV := scripts/in_env
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
 
-setup: ## install Debian packages, the .venv and build the catkin workspace (idempotent)
+setup: ## install Debian packages, the .venv, compile the SITL step (mypyc), build the catkin workspace (idempotent)
 	@scripts/setup.sh all
 
 apt: ## only the Debian packages
@@ -65,8 +65,8 @@ docker-build: ## build docker/Dockerfile (needs a Docker engine)
 docker-run: ## run `make demo` in the image
 	docker run --rm -it uav-test-range
 
-clean: ## remove the catkin build and test outputs (keeps .venv and apt)
-	rm -rf catkin_ws/build catkin_ws/devel catkin_ws/install artifacts .stamps/catkin_make.log
+clean: ## remove the catkin build, the compiled SITL modules and test outputs (keeps .venv and apt)
+	rm -rf catkin_ws/build catkin_ws/devel catkin_ws/install artifacts .stamps/catkin_make.log sitl/build
 
 distclean: clean ## also remove the venv and stamps
 	rm -rf .venv .stamps

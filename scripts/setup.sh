@@ -4,7 +4,7 @@
 # stamp in .stamps/ says its inputs have not changed since it last succeeded.
 #
 #   scripts/setup.sh            # everything
-#   scripts/setup.sh apt|venv|build
+#   scripts/setup.sh apt|venv|compile|build
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -14,6 +14,7 @@ SYS_PY=/usr/bin/python3
 mkdir -p "$STAMPS"
 
 say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
+warn() { printf '\033[1;33m[setup] warning:\033[0m %s\n' "$*" >&2; }
 die() { printf '\033[1;31m[setup] error:\033[0m %s\n' "$*" >&2; exit 1; }
 
 hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
@@ -91,6 +92,19 @@ EOF
   echo "$want" > "$stamp"
 }
 
+step_compile() {
+  [ -x "$VENV/bin/python" ] || die "no .venv; run the venv step first"
+  # mypyc compiles the SITL's per-step modules into sitl/build/compiled-core (skipped while its stamp matches
+  # the sources; the SITL runs the pure-Python modules whenever it does not, see docs/sitl.md "Speed").
+  mkdir -p "$REPO/sitl/build"
+  (
+    flock 9
+    "$VENV/bin/python" "$REPO/scripts/build_sitl_core.py"
+  ) 9>"$REPO/sitl/build/compile.lock" \
+    || warn "compiling the SITL's per-step modules failed (log: sitl/build/compiled-core.log); the SITL runs" \
+      "its pure-Python modules, correct but about 1.5x slower (docs/sitl.md \"Speed\")"
+}
+
 step_build() {
   [ -f /usr/bin/catkin_make ] || die "catkin_make not found; run the apt step first"
   say "build: catkin_make (Release, /usr/bin/python3)"
@@ -117,9 +131,10 @@ main() {
   case "${1:-all}" in
     apt) step_apt ;;
     venv) step_venv ;;
+    compile) step_compile ;;
     build) step_build ;;
-    all) step_apt; step_venv; step_build ;;
-    *) die "unknown step '$1' (use apt, venv, build or all)" ;;
+    all) step_apt; step_venv; step_compile; step_build ;;
+    *) die "unknown step '$1' (use apt, venv, compile, build or all)" ;;
   esac
 }
 

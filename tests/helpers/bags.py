@@ -125,8 +125,17 @@ class BagKit:
         camera: str,
         source: str,
         dets: list[tuple[int, str, tuple[int, int, int, int], float, tuple[float, float, float]]],
+        *,
+        scores: list[float] | None = None,
+        position_source: str = "ground_truth",
+        sigma_m: float = 0.0,
+        discarded: dict[str, int] | None = None,
     ) -> Any:
+        """A DetectionArray: the truth's (``source`` ground_truth) or the geolocator's (scores, position source,
+        covariance, discard counts; a NaN position is an unplaced detection)."""
         d = self.T("uav_msgs/msg/Detection")
+        placed = [all(math.isfinite(v) for v in p) for *_, p in dets]
+        cov = np.diag([sigma_m**2, sigma_m**2, sigma_m**2]).ravel()
         return self.T("uav_msgs/msg/DetectionArray")(
             header=self.header(t, f"camera_{camera}_optical"),
             camera=camera,
@@ -135,17 +144,21 @@ class BagKit:
                 d(
                     instance_id=i,
                     class_name=c,
-                    score=1.0,
+                    score=1.0 if scores is None else scores[k],
                     x_min=b[0],
                     y_min=b[1],
                     x_max=b[2],
                     y_max=b[3],
                     range_m=r,
-                    visible_fraction=1.0,
+                    visible_fraction=1.0 if source == "ground_truth" else math.nan,
                     position=self.point(*p),
+                    position_covariance=cov if placed[k] else np.full(9, np.nan),
+                    position_source=position_source if placed[k] else "unplaced:no_surface",
                 )
-                for i, c, b, r, p in dets
+                for k, (i, c, b, r, p) in enumerate(dets)
             ],
+            discarded_reasons=list(discarded or {}),
+            discarded_counts=np.array(list((discarded or {}).values()), dtype=np.uint32),
         )
 
     def image(self, t: float, arr: np.ndarray, encoding: str) -> Any:
@@ -203,6 +216,8 @@ class BagKit:
             goal=self.point(0, 0, 0),
             target_found=found,
             target_position=self.point(30.0, -80.0, 0.0),
+            detections_unplaced=0,
+            candidates_rejected=0,
             complete_time_s=math.nan,
             stop=bool(stop_reason),
             stop_reason=stop_reason,

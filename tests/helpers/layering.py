@@ -56,6 +56,7 @@ PURE_COMMON = frozenset(
         "uav_common",
         "uav_common.autopilot_modes",
         "uav_common.config",
+        "uav_common.detection_classes",
         "uav_common.errors",
         "uav_common.exit_codes",
         "uav_common.frames",
@@ -133,7 +134,7 @@ def project_packages(repo: Path) -> list[Package]:
         src,
         frozenset(
             {"uav_common", *NUMERIC, "moderngl", "trimesh", "PIL", "pymavlink", *ROS_COMMON, "rosgraph"}
-            | {"rosgraph_msgs", "tf2_ros", "visualization_msgs"}
+            | {"rosgraph_msgs", "tf2_ros", "visualization_msgs", "vision_msgs"}
         ),
         pkg,
     )
@@ -148,7 +149,7 @@ def project_packages(repo: Path) -> list[Package]:
     perception = Package(
         "uav_perception",
         src,
-        frozenset({"uav_common", *NUMERIC, *ROS_COMMON, "tf2_ros"}),
+        frozenset({"uav_common", *NUMERIC, *ROS_COMMON, "tf2_ros", "vision_msgs"}),
         pkg,
     )
     src, pkg = catkin("uav_scenarios")
@@ -156,7 +157,8 @@ def project_packages(repo: Path) -> list[Package]:
         "uav_scenarios",
         src,
         frozenset(
-            {"uav_common", "uav_autonomy", "uav_sim_bridge", *NUMERIC, "matplotlib", "motmetrics", "rosbags"}
+            {"uav_common", "uav_autonomy", "uav_perception", "uav_sim_bridge", *NUMERIC, "matplotlib", "motmetrics"}
+            | {"pycocotools", "rosbags"}
             | {*ROS_COMMON, "rosgraph", "rosgraph_msgs", "rosbag"}
         ),
         pkg,

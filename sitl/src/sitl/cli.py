@@ -45,7 +45,7 @@ def default_config_path() -> Path | None:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="uav-sitl",
-        description="JSBSim F450 quadrotor behind a PX4-compatible MAVLink autopilot (see docs/sitl.md).",
+        description="JSBSim F450 quadrotor behind a PX4- or ArduPilot-compatible MAVLink autopilot (see docs/sitl.md).",
     )
     p.add_argument("--config", type=Path, help="YAML config (default: $UAV_SITL_CONFIG or config/sitl.yaml)")
     p.add_argument("--no-config", action="store_true", help="ignore config files; built-in defaults + flags only")
@@ -55,6 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="KEY=VALUE",
         help="override any config key, e.g. --set battery.initial_soc=0.5 (repeatable; YAML value)",
+    )
+    p.add_argument(
+        "--autopilot",
+        metavar="NAME",
+        help="the autopilot personality: px4 (default) or ardupilot (ArduCopter's heartbeat, modes, parameters)",
     )
     p.add_argument("--speed-factor", help="simulation speed: a number (1 = real time) or 'max'")
     p.add_argument("--lockstep", action="store_true", help="advance time only on SIM_STEP grants (sim link)")
@@ -93,6 +98,8 @@ def _parse_value(text: str) -> Any:
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:  # noqa: PLR0912
     """Dotted config overrides from the flags (``--set`` last, so it wins)."""
     out: dict[str, Any] = {}
+    if args.autopilot is not None:
+        out["autopilot"] = args.autopilot.strip().lower()
     if args.speed_factor is not None:
         out["time.speed_factor"] = "max" if args.speed_factor == "max" else _parse_value(args.speed_factor)
     if args.lockstep:
@@ -146,7 +153,7 @@ def load_from_args(args: argparse.Namespace) -> SitlConfig:
     return load_sitl_config(path, overrides_from_args(args))
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: PLR0911 - one exit per failure kind
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=getattr(logging, args.log_level),
@@ -170,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     except LinkError as err:
         sys.stderr.write(f"uav-sitl: {err}\n")
         return EXIT_LINK
+    except SitlConfigError as err:
+        sys.stderr.write(f"uav-sitl: configuration error: {err}\n")
+        return EXIT_CONFIG
     except SitlError as err:
         sys.stderr.write(f"uav-sitl: {err}\n")
         return EXIT_ERROR

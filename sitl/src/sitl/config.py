@@ -19,11 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from sitl.core.params import ParamTable
+from sitl.core.personality import ConfigDefaults, Personality, personality_named
 from sitl.errors import SitlConfigError
 from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_mapping, set_dotted
 from uav_common.validate import require, require_port
 
 __all__ = [
+    "AutopilotName",
     "BatteryConfig",
     "EstimatorConfig",
     "EstimatorMode",
@@ -42,6 +45,7 @@ __all__ = [
     "TimeMode",
     "UdpLinkConfig",
     "load_sitl_config",
+    "params_for_config",
 ]
 
 
@@ -205,7 +209,7 @@ class FailsafeConfig:
 
 @dataclass(frozen=True)
 class ParamsConfig:
-    """Parameter table: the persisted file and default overrides by PX4 name."""
+    """Parameter table: the persisted file and default overrides by the personality's parameter names."""
 
     file: Path | None = None
     defaults: dict[str, float] = field(default_factory=dict)
@@ -338,10 +342,18 @@ class MavlinkConfig:
         require(0.0 <= self.stats_period_s <= 3600.0, "'stats_period_s' must be in [0, 3600] (0 = off)")
 
 
+class AutopilotName(enum.Enum):
+    """Which autopilot the SITL is (``--autopilot``): its heartbeat, modes, parameters and conventions."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
+
+
 @dataclass(frozen=True)
 class SitlConfig:
     """Everything ``uav-sitl`` needs; one instance per process."""
 
+    autopilot: AutopilotName = AutopilotName.PX4
     home: HomeConfig = field(default_factory=HomeConfig)
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     time: TimeConfig = field(default_factory=TimeConfig)
@@ -352,6 +364,40 @@ class SitlConfig:
     sim_link: SimLinkConfig = field(default_factory=SimLinkConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+
+    @property
+    def personality(self) -> Personality:
+        return personality_named(self.autopilot.value)
+
+
+def params_for_config(cfg: SitlConfig) -> ParamTable:
+    """The personality's parameter table with defaults from the config (failsafe section, ``params.defaults``).
+
+    Raises:
+        ValueError: a default names a parameter this personality does not have (the message says which
+            personality has it) or is out of range.
+    """
+    fs = cfg.failsafe
+    personality = cfg.personality
+    defaults = personality.config_defaults(
+        ConfigDefaults(
+            battery_return_land=fs.battery_action == "return_land",
+            battery_low_remaining=fs.battery_low_remaining,
+            battery_critical_remaining=fs.battery_critical_remaining,
+            battery_capacity_mah=cfg.battery.capacity_mah,
+            battery_cells=cfg.battery.cells,
+            datalink_action=fs.datalink_loss_action.value,
+            datalink_timeout_s=fs.datalink_loss_timeout_s,
+            offboard_action=fs.offboard_loss_action.value,
+            offboard_timeout_s=fs.offboard_loss_timeout_s,
+            geofence_action=fs.geofence_action.value,
+            geofence_radius_m=fs.geofence_radius_m,
+            geofence_max_altitude_m=fs.geofence_max_altitude_m,
+            system_id=cfg.mavlink.system_id,
+        )
+    )
+    defaults.update(cfg.params.defaults)
+    return personality.param_table(defaults)
 
 
 _PATH_KEYS = (
@@ -409,6 +455,12 @@ def load_sitl_config(
         data = deep_merge(data, extra)
         source += " + command-line overrides (" + ", ".join(sorted(overrides)) + ")"
     try:
-        return from_mapping(SitlConfig, data, source=source)
+        cfg = from_mapping(SitlConfig, data, source=source)
     except ConfigError as err:
         raise SitlConfigError(str(err)) from err
+    try:
+        params_for_config(cfg)
+    except ValueError as err:
+        msg = f"{source}: params.defaults / failsafe ({cfg.autopilot.value} personality): {err}"
+        raise SitlConfigError(msg) from err
+    return cfg

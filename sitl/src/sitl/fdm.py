@@ -211,7 +211,7 @@ class JsbsimQuad:
             q = (-q[0], -q[1], -q[2], -q[3])
         a = self._att
         phi, theta, psi = a[0].get_double_value(), a[1].get_double_value(), a[2].get_double_value()
-        lat, lon, h_ft, vn, ve, vd, ax, ay, az, agl_ft, g = (n.get_double_value() for n in self._state_nodes)
+        lat, lon, h_ft, vn, ve, vd, ax, ay, az, agl_ft, g = [n.get_double_value() for n in self._state_nodes]
         state = VehicleState(
             t_s=t_s,
             lat_deg=lat,
@@ -225,7 +225,8 @@ class JsbsimQuad:
             height_above_ground_m=max(0.0, agl_ft * FT_TO_M - self.ground_clearance_m),
             gravity_mps2=g * FT_TO_M,
         )
-        if not all(math.isfinite(v) for v in (state.alt_amsl_m, *state.vel_ned_mps, *state.q_wxyz)):
+        fin = math.isfinite
+        if not (fin(h_ft) and fin(vn) and fin(ve) and fin(vd) and fin(q[0]) and fin(q[1]) and fin(q[2]) and fin(q[3])):
             msg = f"JSBSim state became non-finite at t={t_s:.3f} s"
             raise FdmError(msg)
         return state
@@ -265,12 +266,19 @@ class JsbsimQuad:
     def motor_electrical_power_w(self) -> float:
         """Sum over the motors of applied voltage times motor current (W)."""
         c = self._current
-        thr = self._last_throttle
+        t0, t1, t2, t3 = self._last_throttle
+        # max(0.0, current) written out (this runs every step; same result for -0.0 and NaN)
+        c0, c1, c2, c3 = (
+            c[0].get_double_value(),
+            c[1].get_double_value(),
+            c[2].get_double_value(),
+            c[3].get_double_value(),
+        )
         return self.motor_max_voltage_v * (
-            thr[0] * max(0.0, c[0].get_double_value())
-            + thr[1] * max(0.0, c[1].get_double_value())
-            + thr[2] * max(0.0, c[2].get_double_value())
-            + thr[3] * max(0.0, c[3].get_double_value())
+            t0 * (c0 if c0 > 0.0 else 0.0)
+            + t1 * (c1 if c1 > 0.0 else 0.0)
+            + t2 * (c2 if c2 > 0.0 else 0.0)
+            + t3 * (c3 if c3 > 0.0 else 0.0)
         )
 
     @property

@@ -24,15 +24,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sitl.config import SitlConfig, StreamProfile, TimeMode
+from sitl import compiled_core
+from sitl.config import SitlConfig, StreamProfile, TimeMode, params_for_config
 from sitl.core.params import ParamTable
 from sitl.core.protocol import MavSeverity
-from sitl.errors import ParamFileError, SitlError
+from sitl.errors import ParamFileError, SitlConfigError, SitlError
 from sitl.shell.gateway import Gateway
 from sitl.shell.links import MavLink, TcpServerLink, UdpLink, load_signing_key
 from sitl.shell.param_file import ParamFile
 from sitl.shell.sim_link import SimLink
-from sitl.vehicle import Vehicle, params_for_config
+from sitl.vehicle import Vehicle
 
 __all__ = ["RunSummary", "Simulator"]
 
@@ -54,6 +55,8 @@ class Simulator:
     """Owns the vehicle, the links and the clock. ``run()`` until ``stop()``."""
 
     POLL_INTERVAL_UNPACED_S = 0.002
+    # load and statistics bookkeeping: every this many free-running steps (a few wall milliseconds at most)
+    HOUSEKEEPING_EVERY_STEPS = 25
     # telemetry frames are batched into datagrams and flushed at least this often (wall clock)
     FLUSH_INTERVAL_S = 0.002
 
@@ -67,8 +70,8 @@ class Simulator:
         try:
             params = params_for_config(cfg)
         except ValueError as err:
-            msg = f"params.defaults / failsafe: {err}"
-            raise SitlError(msg) from err
+            msg = f"params.defaults / failsafe ({cfg.autopilot.value} personality): {err}"
+            raise SitlConfigError(msg) from err
         self._load_params(params, reset=reset_params)
         self.vehicle = Vehicle(cfg, params)
         self.vehicle.autopilot.wall_scale = 0.0 if (cfg.time.mode is TimeMode.LOCKSTEP) else 1.0 / cfg.time.speed
@@ -255,7 +258,13 @@ class Simulator:
         wall0 = self._clock()
         t0 = self.vehicle.t_s
         steps0 = self.vehicle.steps
-        log.info("simulation running: %s, ports %s", self._describe_time(), self.ports())
+        log.info(
+            "simulation running: %s autopilot, %s, ports %s; step modules: %s",
+            self.cfg.personality.label,
+            self._describe_time(),
+            self.ports(),
+            compiled_core.active().reason,
+        )
         if self.cfg.time.mode is TimeMode.LOCKSTEP:
             self._run_lockstep(max_sim_time_s)
         else:
@@ -278,9 +287,15 @@ class Simulator:
         ref_sim = self.vehicle.t_s
         last_poll = ref_wall
         end = math.inf if max_sim_time_s is None else self.vehicle.t_s + max_sim_time_s
-        while not self._stop.is_set() and self.vehicle.t_s < end - 1e-9:
+        paced = math.isfinite(speed)
+        vehicle = self.vehicle
+        stopped = self._stop.is_set
+        step = self._step
+        housekeeping_every = self.HOUSEKEEPING_EVERY_STEPS
+        count = 0
+        while not stopped() and vehicle.t_s < end - 1e-9:
             now = clock()
-            if math.isfinite(speed):
+            if paced:
                 due = ref_wall + (self.vehicle.t_s + dt - ref_sim) / speed
                 if now < due:
                     self.poll(due - now)
@@ -294,8 +309,11 @@ class Simulator:
             elif now - last_poll >= self.POLL_INTERVAL_UNPACED_S:
                 self.poll(0.0)
                 last_poll = now
-            self._step(now)
-            self._housekeeping(now)
+            step(now)
+            count += 1
+            if count >= housekeeping_every:
+                count = 0
+                self._housekeeping(now)
 
     def _run_lockstep(self, max_sim_time_s: float | None) -> None:
         sim = self.sim_link
@@ -347,7 +365,7 @@ class Simulator:
         log.info(
             "t_sim=%.1f s mode=%s armed=%s landed=%s battery=%.1f V %.0f%% (%.0f mAh)",
             self.vehicle.t_s,
-            ap.mode.px4_name,
+            ap.mode_name,
             ap.armed,
             ap.landed,
             b.voltage_v,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from sitl.config import EstimatorMode, SitlConfig
+from sitl.config import EstimatorMode, SitlConfig, params_for_config
 from sitl.core.autopilot import Autopilot
 from sitl.core.battery import BatteryModel, BatteryReading, BatterySpec
 from sitl.core.control import Mixer
@@ -20,38 +20,6 @@ from sitl.fdm import JsbsimQuad
 from uav_common.geo import GeoPoint, LocalProjection
 
 __all__ = ["Vehicle", "params_for_config"]
-
-
-def params_for_config(cfg: SitlConfig) -> ParamTable:
-    """The parameter table with defaults from the config (failsafe section, ``params.defaults``).
-
-    Raises:
-        ValueError: a default names an unknown parameter or is out of range.
-    """
-    fs = cfg.failsafe
-    action_codes = {"disabled": 0, "hold": 1, "return": 2, "land": 3}
-    obl_codes = {"hold": 5, "return": 3, "land": 4}
-    gf_codes = {"disabled": 0, "warn": 1, "hold": 2, "return": 3, "land": 5}
-    if fs.datalink_loss_action.value not in action_codes:
-        msg = f"failsafe.datalink_loss_action cannot be {fs.datalink_loss_action.value!r}"
-        raise ValueError(msg)
-    defaults: dict[str, float] = {
-        "BAT_LOW_THR": fs.battery_low_remaining,
-        "BAT_CRIT_THR": fs.battery_critical_remaining,
-        "COM_LOW_BAT_ACT": 3 if fs.battery_action == "return_land" else 0,
-        "NAV_DLL_ACT": action_codes[fs.datalink_loss_action.value],
-        "COM_DL_LOSS_T": fs.datalink_loss_timeout_s,
-        "COM_OBL_RC_ACT": obl_codes[fs.offboard_loss_action.value],
-        "COM_OF_LOSS_T": fs.offboard_loss_timeout_s,
-        "GF_ACTION": gf_codes[fs.geofence_action.value],
-        "GF_MAX_HOR_DIST": fs.geofence_radius_m,
-        "GF_MAX_VER_DIST": fs.geofence_max_altitude_m,
-        "BAT1_N_CELLS": cfg.battery.cells,
-        "BAT1_CAPACITY": cfg.battery.capacity_mah,
-        "MAV_SYS_ID": cfg.mavlink.system_id,
-    }
-    defaults.update(cfg.params.defaults)
-    return ParamTable(defaults=defaults)
 
 
 class Vehicle:
@@ -106,6 +74,7 @@ class Vehicle:
             datalink_floor_s=cfg.time.datalink_wall_floor_s,
             offboard_floor_s=cfg.time.stream_wall_floor_s,
             manual_floor_s=cfg.time.stream_wall_floor_s,
+            personality=cfg.personality,
         )
         self.steps = 0
         self.t_s = 0.0
@@ -144,22 +113,26 @@ class Vehicle:
         """Advance one physics step (``dt_s``)."""
         ap = self.autopilot
         battery = self.battery
-        if self.steps % self.divider == 0:
+        fdm = self.fdm
+        divider = self.divider
+        if self.steps % divider == 0:
             self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
-            ap.outer_update(self.t_s, wall_s, self.est, battery.soc)
-        q, rates = self.fdm.attitude_and_rates()
+            ap.outer_update(self.t_s, wall_s, self.est, battery.soc, battery.terminal_voltage_v)
+        q, rates = fdm.attitude_and_rates()
         voltage = battery.terminal_voltage_v
-        duty = ap.inner_update(q, rates, self.dt_s, self._vmax / max(voltage, 1.0))
+        # max(voltage, 1.0) written out (this runs every step)
+        duty = ap.inner_update(q, rates, self.dt_s, self._vmax / (1.0 if voltage < 1.0 else voltage))
         self.duty = duty
-        self.fdm.step(duty, voltage)
+        fdm.step(duty, voltage)
         # the electrical power of every step is integrated; the battery state (and its terminal
         # voltage) advances once per outer-loop period with the mean power of those steps
-        self._power_sum_w += self.fdm.motor_electrical_power_w()
-        self.steps += 1
-        self.t_s = self.steps * self.dt_s
-        if self.steps % self.divider == 0:
-            mean_w = self._power_sum_w / self.divider / self._esc_eff + self._avionics_w
-            battery.step(mean_w, self.dt_s * self.divider)
+        self._power_sum_w += fdm.motor_electrical_power_w()
+        steps = self.steps + 1
+        self.steps = steps
+        self.t_s = steps * self.dt_s
+        if steps % divider == 0:
+            mean_w = self._power_sum_w / divider / self._esc_eff + self._avionics_w
+            battery.step(mean_w, self.dt_s * divider)
             self._power_sum_w = 0.0
 
     TERRAIN_PENETRATION_M = 0.01

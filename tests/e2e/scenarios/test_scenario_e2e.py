@@ -28,7 +28,7 @@ from uav_scenarios.report.data import read_run_bag
 
 pytestmark = pytest.mark.slow
 HERE = Path(__file__).resolve().parent
-FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detections")
+FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detections", "pr_curves", "gallery")
 
 
 def runs_dir() -> Path:
@@ -82,6 +82,13 @@ def test_sar_finds_the_person_and_the_report_has_every_figure() -> None:
     status_target = read_run_bag(run_dir / "run.bag").target_position_m
     assert status_target is not None
     assert math.dist(status_target, (m["person"]["x_m"], m["person"]["y_m"])) < 3.0
+    assert m["search"]["correct"] is True
+    # the ground truth as a box-only detector: every box geolocated, scored against the truth by COCO
+    assert det["source"] == "ground_truth_boxes"
+    assert det["fp"] == 0
+    assert det["fn"] == 0
+    assert det["coco"]["AP50"] == 1.0
+    assert det["geolocation"]["unplaced_share"] == 0.0
     events = [e["what"] for e in m["events"]]
     assert "complete: person confirmed" in events
     assert "controller HOLD" in events
@@ -99,7 +106,8 @@ def test_sar_finds_the_person_and_the_report_has_every_figure() -> None:
         section = re.search(rf'<section id="{fig}">(.*?)</section>', html, re.S)
         assert section is not None, f"no section {fig}"
         assert "data:image/png;base64," in section.group(1), f"figure {fig} has no image"
-        assert (run_dir / "figures" / f"{fig}.png").stat().st_size > 10_000
+        if fig != "gallery":  # the ground truth makes no mistake: its gallery is one line saying so
+            assert (run_dir / "figures" / f"{fig}.png").stat().st_size > 10_000
     assert "Scenario configuration" in html
     assert "small_sar" in html
     # uav-report regenerates it offline from the bag alone
@@ -116,6 +124,41 @@ def test_sar_finds_the_person_and_the_report_has_every_figure() -> None:
     assert rep.returncode == 0, rep.stderr
     assert (offline / "report.html").is_file()
     assert "figures without data" not in rep.stdout
+
+
+def test_sar_with_box_only_detections_finds_the_person() -> None:
+    """The stand-in detector (a test instrument: the truth's boxes missed, jittered, padded with false boxes; no ids,
+    no positions) feeds the geolocator; the tracker and the confirmation see only its placements, and the search
+    still ends on the person placed by the scenario."""
+    run_dir, out = uav_run(HERE / "small_sar_degraded.yaml", "sar_degraded")
+    m = metrics(run_dir)
+    assert m["final"]
+    assert m["stop_reason"] == "target_found", out
+    search = m["search"]
+    assert search["correct"] is True, search
+    assert search["error_m"] < 3.0
+    det = m["detection"]
+    assert det["source"] == "degraded_truth"
+    assert det["fp"] > 0  # not the ground truth in disguise
+    assert det["fn"] > 0
+    assert 0.0 < det["coco"]["AP50"] < 0.9
+    assert det["person_first_detected"]["t_s"] <= m["time"]["complete_s"]
+    geo = det["geolocation"]
+    assert sum(geo["placed"].values()) > 0
+    assert set(geo["placed"]) <= {"elevation", "terrain"}
+    assert geo["error"]["median_m"] < 3.0
+    # what the mission and the tracker used: box-only placements, no instance ids
+    run = read_run_bag(run_dir / "run.bag")
+    placed = [f for f in run.detections if f.source == "degraded_truth"]
+    assert placed
+    assert all(d.instance_id == 0 for f in placed for d in f.detections)
+    assert m["tracking"]["hota"] is not None
+    html = (run_dir / "report.html").read_text()
+    for fig in ("pr_curves", "gallery"):
+        section = re.search(rf'<section id="{fig}">(.*?)</section>', html, re.S)
+        assert section is not None
+        assert "data:image/png;base64," in section.group(1), f"figure {fig} has no image"
+    assert (run_dir / "figures" / "gallery.png").stat().st_size > 10_000  # crops of its mistakes
 
 
 def replay(run_dir: Path, out_dir: Path) -> None:
@@ -148,6 +191,29 @@ def map_input_stamps(bag_path: Path) -> dict[str, list[int]]:
         for topic, msg, _t in bag.read_messages(topics=topics):
             stamps[topic].append(msg.header.stamp.to_nsec())
     return {t: sorted(v) for t, v in stamps.items()}
+
+
+def test_sar_with_the_ardupilot_personality_finds_the_person() -> None:
+    """The same autonomy against ``autopilot: ardupilot``: the controller takes off through GUIDED and
+    MAV_CMD_NAV_TAKEOFF, flies GUIDED position targets, and holds over the person."""
+    scenario = runs_dir() / "small_sar_ardupilot.yaml"
+    scenario.parent.mkdir(parents=True, exist_ok=True)
+    text = (HERE / "small_sar.yaml").read_text()
+    text = text.replace("name: small_sar\n", "name: small_sar_ardupilot\nautopilot: ardupilot\n")
+    text = text.replace("config: small_world.yaml", f"config: {HERE / 'small_world.yaml'}")
+    scenario.write_text(text)
+    run_dir, out = uav_run(scenario, "sar_ardupilot")
+    m = metrics(run_dir)
+    assert m["stop_reason"] == "target_found", out
+    assert 0 < m["time"]["complete_s"] < 120
+    assert m["collisions"]["count"] == 0
+    events = [e["what"] for e in m["events"]]
+    assert "complete: person confirmed" in events
+    controller_log = "\n".join(p.read_text() for p in (run_dir / "logs").rglob("waypoint_controller*.log"))
+    assert "autopilot confirmed GUIDED" in controller_log
+    assert "autopilot in STABILIZE" in controller_log  # ArduCopter's boot mode, named by its own table
+    sitl_log = "\n".join(p.read_text() for p in (run_dir / "logs").rglob("*.log"))
+    assert "ArduPilot autopilot" in sitl_log
 
 
 def test_replay_reproduces_the_live_metrics() -> None:

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import socket
 import struct
+import subprocess
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -15,6 +19,7 @@ from helpers.procs import Proc, free_port, free_udp_port
 
 os.environ["MAVLINK20"] = "1"
 
+import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -193,3 +198,54 @@ class Gcs:
 
     def close(self) -> None:
         self.conn.close()
+
+
+class MavProxy:
+    def __init__(self, master: str, workdir: Path) -> None:
+        exe = shutil.which("mavproxy.py")
+        assert exe is not None, "mavproxy.py is not on PATH (scripts/in_env)"
+        self.lines: list[str] = []
+        self.proc = subprocess.Popen(
+            [exe, f"--master={master}", "--state-basedir", str(workdir)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=workdir,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def send(self, command: str) -> int:
+        mark = len(self.lines)
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        return mark
+
+    def expect(self, pattern: str, timeout_s: float = 30.0, since: int = 0) -> re.Match[str]:
+        deadline = time.monotonic() + timeout_s
+        rx = re.compile(pattern)
+        while time.monotonic() < deadline:
+            for line in self.lines[since:]:
+                m = rx.search(line)
+                if m:
+                    return m
+            time.sleep(0.05)
+        tail = "\n".join(self.lines[-30:])
+        pytest.fail(f"MAVProxy did not print /{pattern}/ within {timeout_s} s; last lines:\n{tail}")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()

@@ -17,8 +17,10 @@ import pytest
 import yaml
 from ds_data import SMALL_WORLD, small_dataset
 from helpers.bags import BagKit
+from helpers.paths import CONFIG
 
 from uav_common.config import deep_merge
+from uav_common.robot import load_robot_description
 from uav_datasets.core.config import load_dataset_config
 from uav_datasets.core.formats import parse_mot
 from uav_datasets.errors import DatasetConfigError, FlightError
@@ -41,7 +43,6 @@ FORWARD = {
     "height": 120,
     "hfov_deg": 90.0,
     "rate_hz": 10.0,
-    "mount": {"xyz_m": [0.12, 0.0, -0.04], "rpy_deg": [0.0, 25.0, 0.0]},
 }
 
 
@@ -77,7 +78,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, tuple[flo
             "sim_bridge": {
                 "cameras": {
                     "forward": FORWARD,
-                    "nadir": {**FORWARD, "rate_hz": 5.0, "mount": {"rpy_deg": [0.0, 90.0, 0.0]}},
+                    "nadir": {**FORWARD, "rate_hz": 5.0},
                 }
             }
         },
@@ -112,12 +113,12 @@ def test_a_recorded_flight_becomes_a_consistent_sequence(run: tuple[Path, Path, 
     np.testing.assert_allclose(stamps, [T0 + k / 10.0 for k in range(60)], atol=1e-9)
     assert [rec.sequence_frame for rec in frames] == list(range(1, 61))
     assert {rec.sequence for rec in frames} == {"run-forward"}
+    # the camera sits where the robot description puts it, as the bridge of the run had it
+    mount = load_robot_description(CONFIG / "robot.yaml").mount("forward")
     cam = CameraModel.from_config(
         "forward",
-        CameraConfig(
-            **{**FORWARD, "mount": MountConfig(tuple(FORWARD["mount"]["xyz_m"]), tuple(FORWARD["mount"]["rpy_deg"]))}
-        ),
-    )  # type: ignore[arg-type]
+        CameraConfig(**FORWARD, mount=MountConfig(mount.xyz_m, mount.rpy_deg)),  # type: ignore[arg-type]
+    )
     world = load_world(load_world_config(tmp / "ds_world.yaml"), cache)
     for rec in frames[::7]:
         x = px - 60.0 + SPEED * (rec.timestamp_s - T0)

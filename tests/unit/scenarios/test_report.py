@@ -68,7 +68,8 @@ def test_report_without_snapshots_says_what_is_missing(tmp_path: Path) -> None:
     path = tmp_path / "thin.bag"
     write_synthetic_run(path, duration_s=20.0, with_snapshots=False)
     report = build_report(read_run_bag(path), tmp_path / "out")
-    assert set(report.missing) == {"cameras", "maps"}
+    # 20 s: the synthetic detector has not started (no detector frame scored: no PR curve, no gallery)
+    assert set(report.missing) == {"cameras", "maps", "pr_curves", "gallery"}
     assert "no data for this figure" in report.html_path.read_text()
 
 

@@ -10,7 +10,9 @@ from helpers.paths import REPO
 
 from uav_common.config import ConfigError
 from uav_scenarios.core.config import (
+    GEOLOCATED_TOPIC,
     DepthSource,
+    DetectorKind,
     MissionKind,
     RecordingSpec,
     StopCriteria,
@@ -180,3 +182,47 @@ def test_recorded_topics_presets() -> None:
     assert not {"/map_server/layers", "/autonomy/features", "/scenario/metrics", "/scenario/tracks"} & set(played)
     with pytest.raises(ValueError, match="preset"):
         replace(RecordingSpec(), preset="everything")
+
+
+def test_the_detector_under_test_and_its_topics(tmp_path: Path) -> None:
+    sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    perception = sar.perception
+    assert perception.detector is DetectorKind.GROUND_TRUTH
+    assert perception.camera == "forward"
+    assert perception.boxes_topic == "/detections/forward/ground_truth"
+    assert perception.source == "ground_truth_boxes"
+    topics = recorded_topics(sar)
+    # the truth, the detector's own boxes as they came and their placements are all in the bag
+    assert {"/detections/ground_truth", "/detections/forward/ground_truth", GEOLOCATED_TOPIC} <= set(topics)
+    assert GEOLOCATED_TOPIC in played_topics(sar)  # a replay re-tracks and re-scores the recorded placements
+    text = (REPO / "config/scenarios/search_and_rescue.yaml").read_text()
+    text = text.replace("../worlds/default.yaml", str(REPO / "config/worlds/default.yaml"))
+    path = tmp_path / "stand_in.yaml"
+    path.write_text(text.replace("detector: ground_truth", "detector: degraded_truth\n  degraded: {seed: 4}"))
+    stand_in = load_scenario(path).perception
+    assert stand_in.boxes_topic == "/degraded_detector/detections"
+    assert stand_in.degraded == {"seed": 4}
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        ("  confirm_detections: 3\n", "search.detection_topic and search.camera have moved"),
+        ("detector: ground_truth", "external needs detector_topic"),
+        ("score_threshold: 0.5", "score_threshold must be within"),
+        ("camera: forward\n  score", "detector_topic is for detector: external"),
+    ],
+)
+def test_bad_perception_sections_say_what_to_do(tmp_path: Path, edit: str, match: str) -> None:
+    text = (REPO / "config/scenarios/search_and_rescue.yaml").read_text()
+    replacement = {
+        "  confirm_detections: 3\n": "  confirm_detections: 3\n  detection_topic: /detections/ground_truth\n",
+        "detector: ground_truth": "detector: external",
+        "score_threshold: 0.5": "score_threshold: 1.5",
+        "camera: forward\n  score": "camera: forward\n  detector_topic: /mine\n  score",
+    }[edit]
+    assert edit in text
+    path = tmp_path / "bad.yaml"
+    path.write_text(text.replace(edit, replacement, 1))
+    with pytest.raises(ConfigError, match=match):
+        load_scenario(path)

@@ -71,3 +71,22 @@ def test_ports_are_checked() -> None:
 
 def test_flatten_settings() -> None:
     assert flatten_settings({"a": {"b": 1, "c": {"d": [1, 2]}}, "e": {}}) == [("a.b", 1), ("a.c.d", [1, 2]), ("e", {})]
+
+
+def test_the_scenario_chooses_the_autopilot_personality(tmp_path: Path) -> None:
+    from uav_scenarios.core.config import AutopilotKind  # noqa: PLC0415
+    from uav_scenarios.errors import ScenarioConfigError  # noqa: PLC0415
+
+    s = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    assert s.autopilot is AutopilotKind.PX4  # the default
+    assert sitl_config(sitl_argv(s, PORTS, params_file=tmp_path / "p.json")).autopilot.value == "px4"
+    ardu = replace(s, autopilot=AutopilotKind.ARDUPILOT)
+    cfg = sitl_config(sitl_argv(ardu, PORTS, params_file=tmp_path / "p.json"))
+    assert cfg.autopilot.value == "ardupilot"
+    assert cfg.failsafe.geofence_max_altitude_m == 200.0  # node_params.sitl still applies (FENCE_ALT_MAX)
+    bad = tmp_path / "bad.yaml"
+    text = (REPO / "config/scenarios/search_and_rescue.yaml").read_text()
+    text = text.replace("config: ../worlds/default.yaml", f"config: {REPO / 'config/worlds/default.yaml'}")
+    bad.write_text("autopilot: betaflight\n" + text)
+    with pytest.raises(ScenarioConfigError, match=r"autopilot.*'px4', 'ardupilot'"):
+        load_scenario(bad)

@@ -108,3 +108,47 @@ def test_phases_and_controller_states() -> None:
     assert flying_phase(sar) is Phase.SEARCHING
     assert controller_state_for(sar) == "AUTONOMOUS"
     assert controller_state_for(mower) == "SCRIPTED"
+
+
+def placed(x: float, y: float, score: float = 0.9, sigma_m: float = 1.0) -> Detection:
+    """A box-only detector's person, placed by the geolocator (instance id 0, a covariance)."""
+    cov = (sigma_m**2, 0.0, 0.0, 0.0, sigma_m**2, 0.0, 0.0, 0.0, 1.0)
+    return Detection(0, "person", score, (0, 0, 5, 5), 50.0, math.nan, (x, y, 0.0), cov, "elevation")
+
+
+def test_the_gate_counts_what_it_cannot_use_and_never_drops_it_unseen() -> None:
+    area = ((-50.0, -50.0), (50.0, -50.0), (50.0, 50.0), (-50.0, 50.0))
+    gate = ConfirmationGate(needed=2, window_s=5.0, min_score=0.5, area=area)
+    unplaced = Detection(0, "person", 0.9, (0, 0, 5, 5), 50.0, math.nan, (math.nan,) * 3, (), "unplaced:no_surface")
+    frames = [
+        (unplaced, placed(0, 0, score=0.2)),  # no position; below the operating threshold
+        (placed(0, 0, sigma_m=25.0), placed(80, 0)),  # placed too vaguely to be a place; outside the search area
+        (placed(80, 0), unplaced),
+    ]
+    for k, frame in enumerate(frames):
+        assert gate.update(float(k), frame) is None
+    assert (gate.unplaced, gate.below_threshold, gate.too_uncertain, gate.outside_area, gate.used) == (2, 1, 1, 2, 0)
+    assert gate.update(3.0, (placed(10, 10),)) is None
+    found = gate.update(3.5, (placed(10.5, 10),))
+    assert found is not None
+    assert found.position_m[:2] == pytest.approx((10.25, 10.0))
+
+
+def test_the_operator_check_turns_down_a_bystander_and_the_search_goes_on() -> None:
+    gate = ConfirmationGate(needed=2, window_s=5.0, verify_xy=(40.0, 0.0))
+    assert gate.update(0.0, (placed(0, 0),)) is None
+    assert gate.update(0.5, (placed(0.5, 0),)) is None  # a candidate, but 40 m from the person searched for
+    assert len(gate.rejections) == 1
+    assert gate.rejections[0].position_m[0] == pytest.approx(0.25)
+    assert gate.update(1.0, (placed(0.2, 0), placed(0.1, 0))) is None  # the same bystander again: absorbed
+    assert gate.update(2.0, (placed(39.0, 1.0),)) is None
+    found = gate.update(2.5, (placed(39.5, 0.5),))
+    assert found is not None
+    assert found.position_m[0] == pytest.approx(39.25)
+    assert len(gate.rejections) == 1
+    # without the check the first candidate ends the search, right or wrong
+    blind = ConfirmationGate(needed=2, window_s=5.0)
+    blind.update(0.0, (placed(0, 0),))
+    wrong = blind.update(0.5, (placed(0.5, 0),))
+    assert wrong is not None
+    assert wrong.position_m[0] == pytest.approx(0.25)

@@ -142,3 +142,38 @@ def test_scenario_params_cli_prints_yaml_or_fails(tmp_path: Path) -> None:
     fail = subprocess.run([*cmd, str(bad), "goal_selector"], capture_output=True, text=True, check=False)
     assert fail.returncode == 2  # a configuration error (docs/architecture.md, exit codes)
     assert "time_limt_s" in fail.stderr
+
+
+def test_detector_geolocator_and_tracker_settings(tmp_path: Path) -> None:
+    from uav_common.ros.params import parse_node_params  # noqa: PLC0415
+    from uav_perception.ros.params import DegradedDetectorParams, GeolocatorParams  # noqa: PLC0415
+    from uav_scenarios.ros.params import TrackerParams  # noqa: PLC0415
+
+    sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
+    ctx = RunContext(terrain_dem="/cache/terrain/abc-2m.npz")
+    geo = node_params(sar, "geolocator", ctx)
+    assert geo["detections"] == "/detections/forward/ground_truth"
+    assert geo["terrain_dem"] == "/cache/terrain/abc-2m.npz"
+    assert geo["elevation"] == "/map_server/layers"
+    assert geo["depth"] == ""  # the forward camera is rendered for depth only when asked (use_depth)
+    parse_node_params(GeolocatorParams, geo, node="geolocator")  # the node's own strict parser takes them
+    tracker = node_params(sar, "tracker", ctx)
+    assert tracker["detections"] == "/geolocator/detections"
+    assert tracker["min_score"] == 0.5
+    parse_node_params(TrackerParams, tracker, node="tracker")
+    text = (REPO / "config/scenarios/search_and_rescue.yaml").read_text()
+    text = text.replace("../worlds/default.yaml", str(REPO / "config/worlds/default.yaml"))
+    path = tmp_path / "depth.yaml"
+    path.write_text(
+        text.replace("detector: ground_truth", "detector: degraded_truth\n  degraded: {seed: 9, jitter_px: 1.0}")
+        .replace("use_depth: false", "use_depth: true")
+        .replace("terrain_model: true", "terrain_model: false")
+    )
+    stand_in = load_scenario(path)
+    geo = node_params(stand_in, "geolocator", ctx)
+    assert geo["depth"] == "/cameras/forward/depth/image_raw"
+    assert geo["terrain_dem"] == ""
+    assert geo["detections"] == "/degraded_detector/detections"
+    assert geo["detector"] == "degraded_truth"
+    degraded = parse_node_params(DegradedDetectorParams, node_params(stand_in, "degraded_detector"), node="x")
+    assert (degraded.degrade.seed, degraded.degrade.jitter_px) == (9, 1.0)

@@ -79,10 +79,13 @@ def test_min_hits_and_coasting() -> None:
     assert tracker.update(2.2, [det(0.2, 0)])[0].track_id == 2
 
 
-def test_detections_without_position_are_counted_not_tracked() -> None:
-    tracker = PositionTracker()
-    tracker.update(0.0, [Detection(0, "person", 1.0, (0, 0, 1, 1), 5.0, 1.0)])
-    assert tracker.skipped_without_position == 1
+def test_detections_without_position_or_below_threshold_are_counted_not_tracked() -> None:
+    tracker = PositionTracker(TrackerConfig(min_hits=1, min_score=0.5))
+    unplaced = Detection(0, "person", 0.9, (0, 0, 1, 1), 5.0, 1.0)  # the geolocator could not place it (NaN)
+    weak = Detection(0, "person", 0.3, (0, 0, 1, 1), 5.0, 1.0, (1.0, 1.0, 0.0))
+    tracks = tracker.update(0.0, [unplaced, weak, det(10.0, 0.0)])
+    assert [t.position_m[:2] for t in tracks] == [(10.0, 0.0)]
+    assert (tracker.received, tracker.unplaced, tracker.below_threshold) == (3, 1, 1)
 
 
 def test_out_of_order_frames_rejected() -> None:

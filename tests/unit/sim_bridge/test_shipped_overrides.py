@@ -12,11 +12,11 @@ from typing import Any
 
 import pytest
 import yaml
-from uav_common.config import deep_merge, from_mapping, load_yaml_mapping
-from uav_common.robot import load_robot_description
-from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras
-
 from helpers.paths import REPO
+
+from uav_common.config import deep_merge, load_yaml_mapping
+from uav_common.robot import load_robot_description
+from uav_sim_bridge.config import bridge_config, mounted_cameras
 
 
 def _sim_bridge_overrides(node: Any, where: str) -> list[tuple[str, dict[str, Any]]]:
@@ -60,8 +60,7 @@ def test_the_bridge_accepts_the_overrides(where: str, overrides: dict[str, Any])
     base = REPO / "config" / "sim_bridge.yaml"
     data = deep_merge(load_yaml_mapping(base), overrides)
     robot = load_robot_description(REPO / "config" / "robot.yaml")
-    data["cameras"] = mounted_cameras(data.get("cameras"), robot, source=where)
-    cfg = from_mapping(SimBridgeConfig, data, source=where)
+    cfg = bridge_config(data, robot, source=where)
     assert set(cfg.cameras) <= set(robot.cameras), where
 
 

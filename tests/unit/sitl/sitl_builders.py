@@ -67,6 +67,19 @@ class FakeLink(MavLink):
     def of_type(self, kind: str) -> list[Any]:
         return [m for m, _ in self.sent if m.get_type() == kind]
 
+    def texts(self) -> list[str]:
+        """The STATUSTEXTs sent, MAVLink 2 chunks joined."""
+        out: list[str] = []
+        parts: dict[int, list[str]] = {}
+        for m in self.of_type("STATUSTEXT"):
+            if m.id == 0:
+                out.append(m.text)
+                continue
+            parts.setdefault(m.id, []).append(m.text)
+            if len(m.text) < 50:
+                out.append("".join(parts.pop(m.id)))
+        return out
+
     def clear(self) -> None:
         self.sent.clear()
         self.frames.clear()

@@ -20,6 +20,7 @@ from helpers.paths import REPO
 
 from sitl.config import SitlConfig
 from sitl.core.params import PARAM_SPECS, ParamSpec
+from sitl.core.params_ardupilot import ARDUCOPTER_PARAM_SPECS
 
 DOC = REPO / "docs" / "sitl.md"
 
@@ -95,6 +96,7 @@ TEXT = DOC.read_text()
 CONFIG = leaf_defaults(SitlConfig)
 CONFIG_ROWS = table(TEXT, "Key")
 PARAM_ROWS = table(TEXT, "Parameter")
+ARDUPILOT_PARAM_ROWS = table(TEXT, "ArduPilot parameter")
 
 
 def documented_config_keys() -> dict[str, str]:
@@ -129,10 +131,10 @@ def test_documented_config_defaults_are_the_code_defaults() -> None:
     assert not wrong, f"documented default (doc, code) differs: {wrong}"
 
 
-def documented_params() -> dict[str, tuple[str, str, str]]:
-    """Parameter -> (type, default, range) cells, one per name of a row."""
+def documented_params(rows: list[list[str]] | None = None) -> dict[str, tuple[str, str, str]]:
+    """Parameter -> (type, default, range) cells, one per name of a row (PX4's table unless ``rows``)."""
     out: dict[str, tuple[str, str, str]] = {}
-    for cells in PARAM_ROWS:
+    for cells in PARAM_ROWS if rows is None else rows:
         names = re.findall(r"`([A-Z0-9_]+)`", cells[0])
         defaults = [d.strip() for d in cells[2].split(",")]
         for i, name in enumerate(names):
@@ -141,9 +143,13 @@ def documented_params() -> dict[str, tuple[str, str, str]]:
     return out
 
 
-@pytest.mark.parametrize("spec", PARAM_SPECS, ids=[s.name for s in PARAM_SPECS])
-def test_each_parameter_row_matches_the_parameter(spec: ParamSpec) -> None:
-    rows = documented_params()
+@pytest.mark.parametrize(
+    ("spec", "personality"),
+    [(s, "px4") for s in PARAM_SPECS] + [(s, "ardupilot") for s in ARDUCOPTER_PARAM_SPECS],
+    ids=[s.name for s in PARAM_SPECS] + [f"ardupilot-{s.name}" for s in ARDUCOPTER_PARAM_SPECS],
+)
+def test_each_parameter_row_matches_the_parameter(spec: ParamSpec, personality: str) -> None:
+    rows = documented_params(ARDUPILOT_PARAM_ROWS if personality == "ardupilot" else None)
     assert spec.name in rows, f"docs/sitl.md has no row for {spec.name}"
     ptype, default, rng = rows[spec.name]
     assert ptype == spec.type.name, f"{spec.name}: documented as {ptype}, is {spec.type.name}"
@@ -160,6 +166,9 @@ def test_every_documented_parameter_exists() -> None:
     names = {s.name for s in PARAM_SPECS}
     stale = sorted(set(documented_params()) - names)
     assert not stale, f"docs/sitl.md documents parameters the autopilot does not have: {stale}"
+    ardupilot = {s.name for s in ARDUCOPTER_PARAM_SPECS}
+    stale = sorted(set(documented_params(ARDUPILOT_PARAM_ROWS)) - ardupilot)
+    assert not stale, f"docs/sitl.md documents ArduPilot parameters the personality does not have: {stale}"
 
 
 def test_the_parser_sees_mistakes() -> None:

@@ -70,12 +70,14 @@ class FlightMode(enum.Enum):
     MANUAL = (1, 0)
     ALTCTL = (2, 0)
     POSCTL = (3, 0)
+    ORBIT = (3, 1)
     AUTO_READY = (4, 1)
     AUTO_TAKEOFF = (4, 2)
     AUTO_LOITER = (4, 3)
     AUTO_MISSION = (4, 4)
     AUTO_RTL = (4, 5)
     AUTO_LAND = (4, 6)
+    AUTO_FOLLOW_TARGET = (4, 8)
     ACRO = (5, 0)
     OFFBOARD = (6, 0)
     STABILIZED = (7, 0)
@@ -95,7 +97,9 @@ class FlightMode(enum.Enum):
 
     @property
     def px4_name(self) -> str:
-        """The name QGC, MAVROS and the PX4 console use (``AUTO.LOITER``...)."""
+        """The name QGC, MAVROS and the PX4 console use (``AUTO.LOITER``, ``POSCTL.ORBIT``...)."""
+        if self is FlightMode.ORBIT:
+            return "POSCTL.ORBIT"
         return self.name.replace("AUTO_", "AUTO.")
 
     @property
@@ -117,11 +121,11 @@ class FlightMode(enum.Enum):
     def base_mode(self, *, armed: bool) -> int:
         """``HEARTBEAT.base_mode`` as PX4 fills it in this mode."""
         flags = BASE_MODE_CUSTOM_MODE_ENABLED | BASE_MODE_STABILIZE_ENABLED
-        if self in (FlightMode.MANUAL, FlightMode.POSCTL):
+        if self in (FlightMode.MANUAL, FlightMode.POSCTL, FlightMode.ORBIT):
             flags |= BASE_MODE_MANUAL_INPUT_ENABLED
         if self.is_auto or self is FlightMode.OFFBOARD:
             flags |= BASE_MODE_AUTO_ENABLED | BASE_MODE_GUIDED_ENABLED
-        if self is FlightMode.POSCTL:
+        if self in (FlightMode.POSCTL, FlightMode.ORBIT):
             flags |= BASE_MODE_GUIDED_ENABLED
         if armed:
             flags |= BASE_MODE_SAFETY_ARMED
@@ -143,8 +147,10 @@ _ARDUCOPTER: dict[FlightMode, tuple[int, str]] = {
     FlightMode.OFFBOARD: (4, "GUIDED"),
     FlightMode.AUTO_LOITER: (5, "LOITER"),
     FlightMode.AUTO_RTL: (6, "RTL"),
+    FlightMode.ORBIT: (7, "CIRCLE"),
     FlightMode.AUTO_LAND: (9, "LAND"),
     FlightMode.POSCTL: (16, "POSHOLD"),
+    FlightMode.AUTO_FOLLOW_TARGET: (23, "FOLLOW"),
 }
 _ARDU_BY_NUMBER = {number: mode for mode, (number, _) in _ARDUCOPTER.items()}
 _PX4_BY_MAIN_SUB = {mode.value: mode for mode in FlightMode}

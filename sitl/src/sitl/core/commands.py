@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 
 from sitl.core.autopilot import Autopilot
-from sitl.core.modes import mode_from_set_mode_params
 from sitl.core.protocol import FORCE_ARM_MAGIC, MavCmd, MavFrame, MavResult, MavSeverity, MsgId
 from sitl.core.telemetry import PRODUCIBLE, StreamScheduler
 
@@ -50,10 +49,12 @@ def _as_int(value: float, low: int, high: int) -> int | None:
     return int(value)
 
 
-def _alt_amsl(req: CommandRequest, ap: Autopilot) -> float:
-    """param7 as AMSL; COMMAND_INT in a relative frame is relative to home."""
+def _alt_amsl(req: CommandRequest, ap: Autopilot, *, relative_long: bool = False) -> float:
+    """param7 as AMSL; COMMAND_INT in a relative frame is relative to home, and so is a COMMAND_LONG's
+    when ``relative_long`` (ArduCopter's NAV_TAKEOFF altitude)."""
     alt = req.params[6]
-    if req.frame in _RELATIVE and math.isfinite(alt):
+    relative = req.frame in _RELATIVE if req.is_int else relative_long
+    if relative and math.isfinite(alt):
         return alt + ap.home.alt_amsl_m
     return alt
 
@@ -62,7 +63,9 @@ def handle_command(req: CommandRequest, ap: Autopilot, streams: StreamScheduler,
     """Execute ``req``; the outcome's ``result`` goes into the COMMAND_ACK."""
     p1, p2, p3, p4, p5, p6, _ = req.params
     cmd = req.command
-    if req.is_int and cmd in (MavCmd.NAV_TAKEOFF, MavCmd.NAV_LAND, MavCmd.DO_REPOSITION) and req.frame not in _GLOBAL:
+    ardupilot = ap.personality.is_ardupilot
+    positional = (MavCmd.NAV_TAKEOFF, MavCmd.NAV_LAND, MavCmd.DO_REPOSITION, MavCmd.DO_ORBIT)
+    if req.is_int and cmd in positional and req.frame not in _GLOBAL:
         return CommandOutcome(MavResult.UNSUPPORTED)
     if cmd == MavCmd.COMPONENT_ARM_DISARM:
         arm = _as_int(p1, 0, 1)
@@ -71,7 +74,8 @@ def handle_command(req: CommandRequest, ap: Autopilot, streams: StreamScheduler,
         force = p2 == FORCE_ARM_MAGIC
         return CommandOutcome(ap.arm(force=force) if arm else ap.disarm(force=force))
     if cmd == MavCmd.NAV_TAKEOFF:
-        return CommandOutcome(ap.takeoff(alt_amsl_m=_alt_amsl(req, ap), lat_deg=p5, lon_deg=p6, yaw_deg=p4))
+        alt = _alt_amsl(req, ap, relative_long=ardupilot)
+        return CommandOutcome(ap.takeoff(alt_amsl_m=alt, lat_deg=p5, lon_deg=p6, yaw_deg=p4))
     if cmd == MavCmd.NAV_LAND:
         return CommandOutcome(ap.land(lat_deg=p5, lon_deg=p6))
     if cmd == MavCmd.NAV_RETURN_TO_LAUNCH:
@@ -93,11 +97,26 @@ def handle_command(req: CommandRequest, ap: Autopilot, streams: StreamScheduler,
     if cmd == MavCmd.DO_SET_MODE:
         if not all(math.isfinite(v) for v in (p1, p2, p3)):
             return CommandOutcome(MavResult.DENIED)
-        mode = mode_from_set_mode_params(p1, p2, p3)
+        mode = ap.personality.mode_from_set_mode_params(p1, p2, p3)
         if mode is None:
-            ap.say(MavSeverity.CRITICAL, f"Mode change denied: unsupported mode (base {p1:g}, main {p2:g}, sub {p3:g})")
+            what = f"number {p2:g}" if ardupilot else f"main {p2:g}, sub {p3:g}"
+            ap.say(MavSeverity.CRITICAL, f"Mode change denied: unsupported mode (base {p1:g}, {what})")
             return CommandOutcome(MavResult.DENIED)
         return CommandOutcome(ap.set_mode(mode))
+    if cmd == MavCmd.DO_ORBIT:
+        if ardupilot:
+            ap.say(MavSeverity.WARNING, "DO_ORBIT is not supported by ArduCopter (its CIRCLE mode is not emulated)")
+            return CommandOutcome(MavResult.UNSUPPORTED)
+        return CommandOutcome(
+            ap.orbit(
+                radius_m=p1,
+                velocity_mps=p2,
+                yaw_behaviour=p3,
+                lat_deg=p5,
+                lon_deg=p6,
+                alt_amsl_m=req.params[6],  # AMSL in any frame, as PX4 reads it (MAVSDK sends AMSL with frame 3)
+            )
+        )
     if cmd == MavCmd.DO_CHANGE_SPEED:
         return CommandOutcome(ap.change_speed(p2))
     if cmd == MavCmd.DO_SET_MISSION_CURRENT:

@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
-from sitl.core.params import ParamTable
+from typing import Protocol
 
 __all__ = [
     "ControlGains",
@@ -37,6 +36,10 @@ NAN = math.nan
 
 Quat = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
+
+
+class _ParamLookup(Protocol):
+    def __getitem__(self, name: str, /) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,8 @@ class ControlGains:
     tilt_max_rad: float
 
     @classmethod
-    def from_params(cls, p: ParamTable) -> ControlGains:
+    def from_params(cls, p: _ParamLookup) -> ControlGains:
+        """The gains from PX4's parameter names (the ArduCopter personality maps its own names onto these)."""
         return cls(
             xy_p=p["MPC_XY_P"],
             z_p=p["MPC_Z_P"],
@@ -361,7 +365,7 @@ def _shortest_rotation(u: Vec3, v: Vec3) -> Quat | None:
     return (w / n, cx / n, cy / n, cz / n)
 
 
-def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:
+def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:  # noqa: PLR0915
     """Body rate setpoint (FRD, rad/s) from the attitude error, with roll and pitch first.
 
     PX4's multicopter attitude law (Brescianini, Hehn, D'Andrea 2013, "Nonlinear quadrocopter
@@ -372,7 +376,81 @@ def attitude_rate_setpoint(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: Contr
     path in SO(3), tilting a quadrotor tens of degrees during a 180 degree yaw).
     The error ``2 * imag(q^-1 q_d)`` times the roll/pitch gain gives the rates, clamped to the
     ``MC_*RATE_MAX`` limits; a yaw-rate feed-forward is a rotation about the world z axis.
+
+    This runs every physics step: the quaternion products of :func:`_qmul`, :func:`_body_z` and
+    :func:`_shortest_rotation` are written out here with the same operations in the same order
+    (the result is bit for bit theirs, ``tests/unit/sitl`` compares the two).
     """
+    rp_gain = 0.5 * (gains.roll_p + gains.pitch_p)
+    if rp_gain > 0.0:
+        yaw_w = gains.yaw_p / rp_gain
+        yaw_w = yaw_w if yaw_w > 0.0 else 0.0
+        yaw_w = yaw_w if yaw_w < 1.0 else 1.0
+    else:
+        yaw_w = 1.0
+    w, x, y, z = q
+    sw, sx, sy, sz = q_sp
+    # body z axes of q and q_sp in the world frame
+    u0, u1, u2 = 2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)
+    v0, v1, v2 = 2.0 * (sx * sz + sw * sy), 2.0 * (sy * sz - sw * sx), 1.0 - 2.0 * (sx * sx + sy * sy)
+    dot = u0 * v0 + u1 * v1 + u2 * v2
+    # world-frame rotation of the thrust axis, applied to the current attitude; when the thrust
+    # axes are exactly opposed there is no preferred path and the full attitude is used
+    if dot < -1.0 + 1e-6:
+        rw, rx, ry, rz = sw, sx, sy, sz
+    else:
+        cx, cy, cz = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+        cw = 1.0 + dot
+        n = math.sqrt(cw * cw + cx * cx + cy * cy + cz * cz)
+        aw, ax, ay, az = cw / n, cx / n, cy / n, cz / n
+        rw = aw * w - ax * x - ay * y - az * z
+        rx = aw * x + ax * w + ay * z - az * y
+        ry = aw * y - ax * z + ay * w + az * x
+        rz = aw * z + ax * y - ay * x + az * w
+    # the remaining rotation about the thrust axis (conj(q_red) * q_sp), scaled by the yaw weight
+    aw, ax, ay, az = rw, -rx, -ry, -rz
+    mw = aw * sw - ax * sx - ay * sy - az * sz
+    mz = aw * sz + ax * sy - ay * sx + az * sw
+    if mw < 0.0:
+        mw, mz = -mw, -mz
+    mw = mw if mw > -1.0 else -1.0
+    mw = mw if mw < 1.0 else 1.0
+    mz = mz if mz > -1.0 else -1.0
+    mz = mz if mz < 1.0 else 1.0
+    half = yaw_w * math.acos(mw)
+    half_z = yaw_w * math.asin(mz)
+    bw, bz = math.cos(half), math.sin(half_z)
+    # q_d = q_red * (bw, 0, 0, bz)
+    dw = rw * bw - rx * 0.0 - ry * 0.0 - rz * bz
+    dx = rw * 0.0 + rx * bw + ry * bz - rz * 0.0
+    dy = rw * 0.0 - rx * bz + ry * bw + rz * 0.0
+    dz = rw * bz + rx * 0.0 - ry * 0.0 + rz * bw
+    # error conj(q) * q_d
+    aw, ax, ay, az = w, -x, -y, -z
+    ew = aw * dw - ax * dx - ay * dy - az * dz
+    ex = aw * dx + ax * dw + ay * dz - az * dy
+    ey = aw * dy - ax * dz + ay * dw + az * dx
+    ez = aw * dz + ax * dy - ay * dx + az * dw
+    if ew < 0.0:
+        ex, ey, ez = -ex, -ey, -ez
+    mr, mp, my = gains.max_rates_radps
+    p = 2.0 * rp_gain * ex
+    qr = 2.0 * rp_gain * ey
+    r = 2.0 * rp_gain * ez
+    if not math.isnan(yaw_rate_ff):
+        # a yaw rate about the world z axis, in body axes: the world z axis seen from the body
+        p += 2.0 * (x * z - w * y) * yaw_rate_ff
+        qr += 2.0 * (y * z + w * x) * yaw_rate_ff
+        r += (1.0 - 2.0 * (x * x + y * y)) * yaw_rate_ff
+    # clamp to the rate limits (written out: this runs every step)
+    p = mr if p > mr else (-mr if p < -mr else p)
+    qr = mp if qr > mp else (-mp if qr < -mp else qr)
+    r = my if r > my else (-my if r < -my else r)
+    return p, qr, r
+
+
+def attitude_rate_setpoint_reference(q: Quat, q_sp: Quat, yaw_rate_ff: float, gains: ControlGains) -> Vec3:
+    """:func:`attitude_rate_setpoint` written with the quaternion helpers (the readable form; tests compare)."""
     rp_gain = 0.5 * (gains.roll_p + gains.pitch_p)
     yaw_w = min(1.0, max(0.0, gains.yaw_p / rp_gain)) if rp_gain > 0.0 else 1.0
     reduced = _shortest_rotation(_body_z(q), _body_z(q_sp))
@@ -475,29 +553,54 @@ class Mixer:
         roll, pitch, yaw = torque[0] * a, torque[1] * a, torque[2] * a
         # roll/pitch part per motor (ROLL/PITCH signs written out: this runs every step)
         r0, r1, r2, r3 = -roll + pitch, roll - pitch, roll + pitch, -roll - pitch
-        lo = min(r0, r1, r2, r3)
-        hi = max(r0, r1, r2, r3)
+        # min() / max() written out (first extreme wins, as the builtins): this runs every step
+        lo = r0
+        lo = r1 if r1 < lo else lo
+        lo = r2 if r2 < lo else lo
+        lo = r3 if r3 < lo else lo
+        hi = r0
+        hi = r1 if r1 > hi else hi
+        hi = r2 if r2 > hi else hi
+        hi = r3 if r3 > hi else hi
         spread = hi - lo
         if spread > 1.0 - idle:
             scale = (1.0 - idle) / spread
             r0, r1, r2, r3 = r0 * scale, r1 * scale, r2 * scale, r3 * scale
             lo, hi = lo * scale, hi * scale
-        thrust = min(max(thrust, idle - lo), 1.0 - hi)
+        low = idle - lo
+        thrust = low if low > thrust else thrust
+        high = 1.0 - hi
+        thrust = high if high < thrust else thrust
         # yaw (YAW = +, +, -, -): the largest magnitude up to the request that keeps every motor in range
         b0, b1, b2, b3 = thrust + r0, thrust + r1, thrust + r2, thrust + r3
         if yaw > 0.0:
-            yaw = min(yaw, 1.0 - b0, 1.0 - b1, b2 - idle, b3 - idle)
-            yaw = max(yaw, 0.0)
+            for c in (1.0 - b0, 1.0 - b1, b2 - idle, b3 - idle):
+                yaw = c if c < yaw else yaw
+            yaw = 0.0 if yaw < 0.0 else yaw
         elif yaw < 0.0:
-            yaw = -min(-yaw, b0 - idle, b1 - idle, 1.0 - b2, 1.0 - b3)
-            yaw = min(yaw, 0.0)
+            y = -yaw
+            for c in (b0 - idle, b1 - idle, 1.0 - b2, 1.0 - b3):
+                y = c if c < y else y
+            yaw = -y
+            yaw = 0.0 if yaw > 0.0 else yaw
         inv = self._inv_exp
-        out = []
-        for o in (b0 + yaw, b1 + yaw, b2 - yaw, b3 - yaw):
-            o = 1.0 if o > 1.0 else (idle if o < idle else o)  # noqa: PLW2901
-            d = o**inv * voltage_scale
-            out.append(1.0 if d > 1.0 else d)
-        return out[0], out[1], out[2], out[3]
+        o0, o1, o2, o3 = b0 + yaw, b1 + yaw, b2 - yaw, b3 - yaw
+        o0 = 1.0 if o0 > 1.0 else (idle if o0 < idle else o0)
+        o1 = 1.0 if o1 > 1.0 else (idle if o1 < idle else o1)
+        o2 = 1.0 if o2 > 1.0 else (idle if o2 < idle else o2)
+        o3 = 1.0 if o3 > 1.0 else (idle if o3 < idle else o3)
+        d0, d1, d2, d3 = (
+            o0**inv * voltage_scale,
+            o1**inv * voltage_scale,
+            o2**inv * voltage_scale,
+            o3**inv * voltage_scale,
+        )
+        return (
+            1.0 if d0 > 1.0 else d0,
+            1.0 if d1 > 1.0 else d1,
+            1.0 if d2 > 1.0 else d2,
+            1.0 if d3 > 1.0 else d3,
+        )
 
     def idle(self, voltage_scale: float) -> tuple[float, float, float, float]:
         d = min(1.0, self.idle_thrust**self._inv_exp * voltage_scale)

@@ -5,6 +5,13 @@ returns the failsafes that *started* now, each with its action and the
 STATUSTEXT that announces it. Each trigger latches until its condition clears
 (battery levels latch for the whole flight), like PX4's commander.
 
+Thresholds, timeouts and actions come from the personality's
+:class:`~sitl.core.settings.FlightSettings` (``params.settings``): the same
+rules serve PX4's parameters and ArduCopter's, where ArduCopter also disarms a
+vehicle that is armed on the ground when a battery or GCS failsafe triggers,
+judges its battery on remaining capacity and (optionally) voltage, and has no
+offboard-stream failsafe.
+
 Link and stream losses are judged on simulation time, with a wall-clock floor:
 a client that lives in wall time (MAVSDK's 1 Hz heartbeat, a 20 Hz offboard
 stream) is only declared lost when it has also been silent for
@@ -18,9 +25,10 @@ import enum
 import math
 from dataclasses import dataclass
 
-from sitl.core.modes import FlightMode
 from sitl.core.params import ParamTable
 from sitl.core.protocol import MavSeverity
+from sitl.core.settings import Action, FlightSettings
+from uav_common.autopilot_modes import FlightMode
 
 __all__ = [
     "Action",
@@ -39,14 +47,6 @@ class FailsafeKind(enum.Enum):
     OFFBOARD_LOST = "offboard_lost"
     MANUAL_CONTROL_LOST = "manual_control_lost"
     GEOFENCE = "geofence"
-
-
-class Action(enum.Enum):
-    WARN = "warn"
-    HOLD = "hold"
-    RETURN = "return"
-    LAND = "land"
-    POSITION = "position"
 
 
 @dataclass(frozen=True)
@@ -95,12 +95,9 @@ class FailsafeInputs:
     battery_remaining: float
     distance_from_home_m: float
     altitude_above_home_m: float
-
-
-_DLL_ACTIONS = {1: Action.HOLD, 2: Action.RETURN, 3: Action.LAND}
-_OBL_ACTIONS = {0: Action.POSITION, 3: Action.RETURN, 4: Action.LAND, 5: Action.HOLD}
-_RCL_ACTIONS = {0: Action.HOLD, 1: Action.HOLD, 2: Action.RETURN, 3: Action.LAND}
-_GF_ACTIONS = {1: Action.WARN, 2: Action.HOLD, 3: Action.RETURN, 5: Action.LAND}
+    battery_voltage_v: float = math.nan
+    fence_breach: str | None = None
+    """What an uploaded fence zone says is breached (None: inside, or no uploaded fence)."""
 
 
 class FailsafeMonitor:
@@ -112,6 +109,8 @@ class FailsafeMonitor:
         self.manual = LinkActivity()
         self._floors = (datalink_floor_s, offboard_floor_s, manual_floor_s)
         self._active: set[FailsafeKind] = set()
+        self._low_voltage_since: float | None = None
+        self._critical_voltage_since: float | None = None
 
     @property
     def active(self) -> frozenset[FailsafeKind]:
@@ -124,22 +123,29 @@ class FailsafeMonitor:
         if not self.offboard.ever:
             return False
         return not self.offboard.silent_for(
-            params["COM_OF_LOSS_T"], t_s, wall_s, wall_scale=wall_scale, wall_floor_s=self._floors[1]
+            params.settings.offboard_timeout_s, t_s, wall_s, wall_scale=wall_scale, wall_floor_s=self._floors[1]
         )
 
     def update(self, x: FailsafeInputs, params: ParamTable) -> list[FailsafeEvent]:
+        s = params.settings
         events: list[FailsafeEvent] = []
         flying = x.armed and x.in_air
-        self._battery(x, params, events)
+        self._battery(x, s, events)
         dl_floor, _, rc_floor = self._floors
-        # data link: any GCS/SDK heartbeat keeps it alive; only after one was heard
+        # data link: the GCS's heartbeat keeps it alive; only after one was heard
         lost = self.gcs.silent_for(
-            params["COM_DL_LOSS_T"], x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=dl_floor
+            s.datalink_timeout_s, x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=dl_floor
         )
-        action = _DLL_ACTIONS.get(int(params["NAV_DLL_ACT"]))
+        action = s.datalink_action
         if lost and FailsafeKind.DATALINK_LOST not in self._active:
             self._active.add(FailsafeKind.DATALINK_LOST)
-            if flying and action is not None:
+            if action is not None and x.armed and not x.in_air and s.disarm_on_ground_failsafe:
+                events.append(
+                    FailsafeEvent(
+                        FailsafeKind.DATALINK_LOST, Action.DISARM, MavSeverity.CRITICAL, "Data link lost: disarming"
+                    )
+                )
+            elif flying and action is not None:
                 events.append(
                     FailsafeEvent(
                         FailsafeKind.DATALINK_LOST,
@@ -157,12 +163,12 @@ class FailsafeMonitor:
             events.append(
                 FailsafeEvent(FailsafeKind.DATALINK_LOST, Action.WARN, MavSeverity.INFO, "Data link regained")
             )
-        # offboard stream, only while in OFFBOARD
-        if x.mode is FlightMode.OFFBOARD:
+        # offboard stream, only while in OFFBOARD (PX4; ArduCopter's GUIDED keeps its last target)
+        if x.mode is FlightMode.OFFBOARD and s.offboard_loss_action is not None:
             stream_lost = not self.offboard_stream_ok(x.t_s, x.wall_s, params, x.wall_scale)
             if stream_lost and FailsafeKind.OFFBOARD_LOST not in self._active:
                 self._active.add(FailsafeKind.OFFBOARD_LOST)
-                act = _OBL_ACTIONS.get(int(params["COM_OBL_RC_ACT"]), Action.HOLD)
+                act = s.offboard_loss_action
                 events.append(
                     FailsafeEvent(
                         FailsafeKind.OFFBOARD_LOST,
@@ -174,13 +180,13 @@ class FailsafeMonitor:
         else:
             self._active.discard(FailsafeKind.OFFBOARD_LOST)
         # manual control, only while flying on the sticks
-        if x.mode in (FlightMode.MANUAL, FlightMode.POSCTL) and self.manual.ever:
+        if x.mode in _STICK_MODES and self.manual.ever:
             rc_lost = self.manual.silent_for(
-                params["COM_RC_LOSS_T"], x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=rc_floor
+                s.manual_timeout_s, x.t_s, x.wall_s, wall_scale=x.wall_scale, wall_floor_s=rc_floor
             )
             if rc_lost and FailsafeKind.MANUAL_CONTROL_LOST not in self._active:
                 self._active.add(FailsafeKind.MANUAL_CONTROL_LOST)
-                act = _RCL_ACTIONS.get(int(params["NAV_RCL_ACT"]), Action.HOLD) if flying else Action.WARN
+                act = s.manual_loss_action if flying else Action.WARN
                 events.append(
                     FailsafeEvent(
                         FailsafeKind.MANUAL_CONTROL_LOST,
@@ -193,18 +199,38 @@ class FailsafeMonitor:
                 self._active.discard(FailsafeKind.MANUAL_CONTROL_LOST)
         else:
             self._active.discard(FailsafeKind.MANUAL_CONTROL_LOST)
-        self._geofence(x, params, events)
+        self._geofence(x, s, events)
         return events
 
-    def _battery(self, x: FailsafeInputs, params: ParamTable, events: list[FailsafeEvent]) -> None:
-        act_enabled = int(params["COM_LOW_BAT_ACT"]) == 3
+    def _voltage_low(self, x: FailsafeInputs, s: FlightSettings, *, critical: bool) -> bool:
+        """ArduCopter's voltage trigger: below the threshold for ``BATT_LOW_TIMER`` (0 V: off)."""
+        threshold = s.battery_critical_voltage_v if critical else s.battery_low_voltage_v
+        below = threshold > 0.0 and math.isfinite(x.battery_voltage_v) and x.battery_voltage_v < threshold
+        since = self._critical_voltage_since if critical else self._low_voltage_since
+        if not below:
+            since = None
+        elif since is None:
+            since = x.t_s
+        if critical:
+            self._critical_voltage_since = since
+        else:
+            self._low_voltage_since = since
+        return since is not None and x.t_s - since >= s.battery_voltage_timer_s
+
+    def _battery(self, x: FailsafeInputs, s: FlightSettings, events: list[FailsafeEvent]) -> None:
         flying = x.armed and x.in_air
+        on_ground_disarm = s.disarm_on_ground_failsafe and x.armed and not x.in_air
         remaining = x.battery_remaining
         if not math.isfinite(remaining):
             return
-        if remaining <= params["BAT_CRIT_THR"] and FailsafeKind.BATTERY_CRITICAL not in self._active:
+        volt_critical = self._voltage_low(x, s, critical=True)
+        volt_low = self._voltage_low(x, s, critical=False)
+        critical = remaining <= s.battery_critical_remaining or volt_critical
+        if critical and FailsafeKind.BATTERY_CRITICAL not in self._active:
             self._active.update((FailsafeKind.BATTERY_CRITICAL, FailsafeKind.BATTERY_LOW))
-            action = Action.LAND if (act_enabled and flying) else Action.WARN
+            action = s.battery_critical_action if flying else Action.WARN
+            if on_ground_disarm and s.battery_critical_action is not Action.WARN:
+                action = Action.DISARM
             events.append(
                 FailsafeEvent(
                     FailsafeKind.BATTERY_CRITICAL,
@@ -213,9 +239,11 @@ class FailsafeMonitor:
                     f"Critical battery ({100 * remaining:.0f}%): {_describe(action)}",
                 )
             )
-        elif remaining <= params["BAT_LOW_THR"] and FailsafeKind.BATTERY_LOW not in self._active:
+        elif (remaining <= s.battery_low_remaining or volt_low) and FailsafeKind.BATTERY_LOW not in self._active:
             self._active.add(FailsafeKind.BATTERY_LOW)
-            action = Action.RETURN if (act_enabled and flying) else Action.WARN
+            action = s.battery_low_action if flying else Action.WARN
+            if on_ground_disarm and s.battery_low_action is not Action.WARN:
+                action = Action.DISARM
             events.append(
                 FailsafeEvent(
                     FailsafeKind.BATTERY_LOW,
@@ -225,19 +253,21 @@ class FailsafeMonitor:
                 )
             )
 
-    def _geofence(self, x: FailsafeInputs, params: ParamTable, events: list[FailsafeEvent]) -> None:
-        radius, max_alt = params["GF_MAX_HOR_DIST"], params["GF_MAX_VER_DIST"]
+    def _geofence(self, x: FailsafeInputs, s: FlightSettings, events: list[FailsafeEvent]) -> None:
+        radius, max_alt = s.fence_radius_m, s.fence_max_alt_m
         outside_h = radius > 0.0 and x.distance_from_home_m > radius
         outside_v = max_alt > 0.0 and x.altitude_above_home_m > max_alt
-        action = _GF_ACTIONS.get(int(params["GF_ACTION"]))
-        if (outside_h or outside_v) and x.armed and x.in_air and action is not None:
+        zone = x.fence_breach if s.fence_uploaded else None
+        action = s.fence_action
+        if (outside_h or outside_v or zone is not None) and x.armed and x.in_air and action is not None:
             if FailsafeKind.GEOFENCE not in self._active:
                 self._active.add(FailsafeKind.GEOFENCE)
-                what = (
-                    f"{x.distance_from_home_m:.0f} m > {radius:.0f} m"
-                    if outside_h
-                    else f"alt {x.altitude_above_home_m:.0f} m > {max_alt:.0f} m"
-                )
+                if outside_h:
+                    what = f"{x.distance_from_home_m:.0f} m > {radius:.0f} m"
+                elif outside_v:
+                    what = f"alt {x.altitude_above_home_m:.0f} m > {max_alt:.0f} m"
+                else:
+                    what = str(zone)
                 events.append(
                     FailsafeEvent(
                         FailsafeKind.GEOFENCE,
@@ -246,7 +276,7 @@ class FailsafeMonitor:
                         f"Geofence ({what}): {_describe(action)}",
                     )
                 )
-        elif not (outside_h or outside_v):
+        elif not (outside_h or outside_v or zone is not None):
             self._active.discard(FailsafeKind.GEOFENCE)
 
 
@@ -257,4 +287,9 @@ def _describe(action: Action) -> str:
         Action.RETURN: "returning home",
         Action.LAND: "landing",
         Action.POSITION: "position mode",
+        Action.DISARM: "disarming",
     }[action]
+
+
+#: Modes flown on the sticks (manual-control loss matters there).
+_STICK_MODES = frozenset({FlightMode.MANUAL, FlightMode.POSCTL, FlightMode.STABILIZED, FlightMode.ALTCTL})

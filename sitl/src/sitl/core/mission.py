@@ -15,7 +15,11 @@ from sitl.core.protocol import MavCmd, MavFrame, MavMissionResult, MissionState
 from uav_common.geo import GeoPoint, LocalProjection
 
 __all__ = [
+    "DO_COMMANDS",
     "GLOBAL_FRAMES",
+    "NAV_COMMANDS",
+    "PAYLOAD_COMMANDS",
+    "RELATIVE_FRAMES",
     "MissionItem",
     "MissionStore",
     "item_target_ned",
@@ -30,9 +34,40 @@ NAV_COMMANDS = frozenset(
         MavCmd.NAV_RETURN_TO_LAUNCH,
         MavCmd.NAV_LAND,
         MavCmd.NAV_TAKEOFF,
+        MavCmd.NAV_LOITER_TO_ALT,
+        MavCmd.NAV_DELAY,
     }
 )
-DO_COMMANDS = frozenset({MavCmd.DO_CHANGE_SPEED})
+#: Camera, gimbal and video commands: accepted and skipped (the simulated vehicle carries no camera or
+#: gimbal that MAVLink controls; PX4 forwards them to a payload that is not there, ArduPilot likewise).
+PAYLOAD_COMMANDS = frozenset(
+    {
+        MavCmd.DO_DIGICAM_CONTROL,
+        MavCmd.DO_MOUNT_CONFIGURE,
+        MavCmd.DO_MOUNT_CONTROL,
+        MavCmd.DO_SET_CAM_TRIGG_DIST,
+        MavCmd.DO_SET_CAM_TRIGG_INTERVAL,
+        MavCmd.SET_CAMERA_MODE,
+        MavCmd.SET_CAMERA_ZOOM,
+        MavCmd.SET_CAMERA_FOCUS,
+        MavCmd.DO_GIMBAL_MANAGER_PITCHYAW,
+        MavCmd.DO_GIMBAL_MANAGER_CONFIGURE,
+        MavCmd.IMAGE_START_CAPTURE,
+        MavCmd.IMAGE_STOP_CAPTURE,
+        MavCmd.VIDEO_START_CAPTURE,
+        MavCmd.VIDEO_STOP_CAPTURE,
+    }
+)
+DO_COMMANDS = frozenset(
+    {
+        MavCmd.DO_CHANGE_SPEED,
+        MavCmd.DO_JUMP,
+        MavCmd.DO_SET_ROI_LOCATION,
+        MavCmd.DO_SET_ROI_NONE,
+        MavCmd.DO_LAND_START,
+        *PAYLOAD_COMMANDS,
+    }
+)
 GLOBAL_FRAMES = frozenset({MavFrame.GLOBAL, MavFrame.GLOBAL_INT})
 RELATIVE_FRAMES = frozenset({MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT})
 MAX_ITEMS = 1000
@@ -66,7 +101,7 @@ class MissionItem:
         return not (self.x == 0 and self.y == 0)
 
 
-def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911 - one return per check
+def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911, PLR0912 - one return per check
     """``ACCEPTED`` or the ``MAV_MISSION_RESULT`` that rejects the upload (PX4's checks)."""
     if item.command not in NAV_COMMANDS and item.command not in DO_COMMANDS:
         return MavMissionResult.UNSUPPORTED
@@ -80,6 +115,20 @@ def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911 - one
             return MavMissionResult.UNSUPPORTED_FRAME
         if item.command == MavCmd.DO_CHANGE_SPEED and not (item.param2 in (-1.0, -2.0) or 0.0 < item.param2 <= 30.0):
             return MavMissionResult.INVALID_PARAM2
+        if item.command == MavCmd.DO_JUMP:
+            if not (math.isfinite(item.param1) and item.param1 >= 0 and item.param1 == int(item.param1)):
+                return MavMissionResult.INVALID_PARAM1
+            if not (math.isfinite(item.param2) and item.param2 >= -1 and item.param2 == int(item.param2)):
+                return MavMissionResult.INVALID_PARAM2
+        if item.command == MavCmd.DO_SET_ROI_LOCATION:
+            if not (-900_000_000 <= item.x <= 900_000_000 and item.has_position):
+                return MavMissionResult.INVALID_PARAM5_X
+            if not -1_800_000_000 <= item.y <= 1_800_000_000:
+                return MavMissionResult.INVALID_PARAM6_Y
+        return MavMissionResult.ACCEPTED
+    if item.command == MavCmd.NAV_DELAY:
+        if not (math.isfinite(item.param1) and item.param1 >= 0.0):
+            return MavMissionResult.INVALID_PARAM1  # -1 (wait for a time of day) is not supported
         return MavMissionResult.ACCEPTED
     if item.frame not in GLOBAL_FRAMES and item.frame not in RELATIVE_FRAMES:
         return MavMissionResult.UNSUPPORTED_FRAME
@@ -89,7 +138,12 @@ def validate_item(item: MissionItem) -> MavMissionResult:  # noqa: PLR0911 - one
         return MavMissionResult.INVALID_PARAM6_Y
     if not math.isfinite(item.z) and item.command not in (MavCmd.NAV_LAND, MavCmd.NAV_RETURN_TO_LAUNCH):
         return MavMissionResult.INVALID_PARAM7
-    needs_place = item.command in (MavCmd.NAV_WAYPOINT, MavCmd.NAV_LOITER_TIME, MavCmd.NAV_LOITER_UNLIM)
+    needs_place = item.command in (
+        MavCmd.NAV_WAYPOINT,
+        MavCmd.NAV_LOITER_TIME,
+        MavCmd.NAV_LOITER_UNLIM,
+        MavCmd.NAV_LOITER_TO_ALT,
+    )
     if needs_place and not item.has_position:
         return MavMissionResult.INVALID_PARAM5_X
     if item.command in (MavCmd.NAV_WAYPOINT, MavCmd.NAV_LOITER_TIME) and item.param1 < 0.0:

@@ -1,4 +1,5 @@
-"""Offboard setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT to a :class:`Setpoint`.
+"""Offboard setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT to a :class:`Setpoint`, SET_ATTITUDE_TARGET
+to an :class:`AttitudeSetpoint`.
 
 ``type_mask`` bits mark fields to *ignore*. Per axis, a position wins over a
 velocity, a velocity over an acceleration (PX4's rules). Frames: LOCAL_NED,
@@ -6,6 +7,11 @@ LOCAL_OFFSET_NED (position relative to the vehicle), BODY_NED (velocity and
 acceleration rotated by the heading), BODY_OFFSET_NED (both); for the global
 message GLOBAL_INT (AMSL) and GLOBAL_RELATIVE_ALT_INT (above home).
 Any non-finite value in a used field rejects the whole setpoint.
+
+SET_ATTITUDE_TARGET (PX4 OFFBOARD, ArduCopter GUIDED): an attitude quaternion (FRD -> NED) with a
+collective thrust 0..1, or body rates with a thrust (``ATTITUDE_IGNORE`` set), as MAVSDK's
+``set_attitude`` and ``set_attitude_rate`` send them. ``THRUST_BODY_SET`` (a thrust vector) is
+refused, as PX4 multicopters do.
 """
 
 from __future__ import annotations
@@ -14,10 +20,16 @@ import math
 from dataclasses import dataclass
 
 from sitl.core.control import Setpoint
-from sitl.core.protocol import MavFrame, PositionTargetMask
+from sitl.core.protocol import AttitudeTargetMask, MavFrame, PositionTargetMask
 from uav_common.geo import GeoPoint, LocalProjection
 
-__all__ = ["OffboardRejection", "setpoint_from_global_int", "setpoint_from_local_ned"]
+__all__ = [
+    "AttitudeSetpoint",
+    "OffboardRejection",
+    "attitude_setpoint",
+    "setpoint_from_global_int",
+    "setpoint_from_local_ned",
+]
 
 NAN = math.nan
 M = PositionTargetMask
@@ -143,3 +155,45 @@ def setpoint_from_global_int(  # noqa: PLR0917 - mirrors the message fields
     if bad is not None:
         return bad
     return Setpoint(pos=p, vel=v, acc=a, yaw_rad=y, yaw_rate_radps=r)
+
+
+A = AttitudeTargetMask
+
+
+@dataclass(frozen=True)
+class AttitudeSetpoint:
+    """An attitude (``q`` FRD -> NED, ``None``: rates only) or body rates, and a collective thrust 0..1."""
+
+    q: tuple[float, float, float, float] | None
+    body_rates_radps: tuple[float, float, float]
+    thrust: float
+
+
+def attitude_setpoint(  # noqa: PLR0911 - one return per check
+    type_mask: int, q: tuple[float, float, float, float], rates: Vec3, thrust: float
+) -> AttitudeSetpoint | OffboardRejection:
+    """Decode a SET_ATTITUDE_TARGET (``q`` as ``[w, x, y, z]``)."""
+    if type_mask & A.THRUST_BODY_SET:
+        return OffboardRejection("thrust vectors (THRUST_BODY_SET) are not supported by a multicopter")
+    use_att = not type_mask & A.ATTITUDE_IGNORE
+    rate_bits = (A.BODY_ROLL_RATE_IGNORE, A.BODY_PITCH_RATE_IGNORE, A.BODY_YAW_RATE_IGNORE)
+    use_rates = [not type_mask & bit for bit in rate_bits]
+    if type_mask & A.THROTTLE_IGNORE:
+        return OffboardRejection("a thrust is required (THROTTLE_IGNORE is set)")
+    if not math.isfinite(thrust) or not 0.0 <= thrust <= 1.0:
+        return OffboardRejection(f"thrust must be in [0, 1], got {thrust}")
+    quat: tuple[float, float, float, float] | None = None
+    if use_att:
+        if not all(math.isfinite(v) for v in q):
+            return OffboardRejection("non-finite attitude quaternion")
+        norm = math.sqrt(sum(v * v for v in q))
+        if not 0.9 <= norm <= 1.1:
+            return OffboardRejection(f"attitude quaternion is not a unit quaternion (|q| = {norm:.3f})")
+        w, x, y, z = (v / norm for v in q)
+        quat = (w, x, y, z) if w >= 0.0 else (-w, -x, -y, -z)
+    elif not any(use_rates):
+        return OffboardRejection("setpoint ignores both the attitude and the body rates")
+    body = tuple(r if used else 0.0 for r, used in zip(rates, use_rates, strict=True))
+    if not all(math.isfinite(v) for v in body):
+        return OffboardRejection("non-finite body rate")
+    return AttitudeSetpoint(quat, (body[0], body[1], body[2]), thrust)

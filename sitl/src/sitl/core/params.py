@@ -1,7 +1,10 @@
-"""The parameter table: PX4 names, types, defaults and ranges that drive the autopilot.
+"""The parameter table: names, types, defaults and ranges that drive the autopilot; PX4's table.
 
-Integers travel *bytewise* over MAVLink (the int32 bit pattern reinterpreted as a
-float32), as PX4 does and as MAVSDK and QGC expect from a PX4 autopilot.
+A :class:`ParamTable` holds one personality's parameters (PX4's :data:`PARAM_SPECS` by default,
+ArduCopter's in :mod:`sitl.core.params_ardupilot`) and turns them into the
+:class:`~sitl.core.settings.FlightSettings` the core reads (:attr:`ParamTable.settings`, rebuilt
+only after a change). Integers travel *bytewise* over MAVLink for PX4 (the int32 bit pattern
+reinterpreted as a float32), as MAVSDK and QGC expect from a PX4 autopilot; ArduPilot casts them.
 Values are validated on every write; a rejected write leaves the old value.
 """
 
@@ -10,8 +13,11 @@ from __future__ import annotations
 import enum
 import math
 import struct
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+
+from sitl.core.control import ControlGains
+from sitl.core.settings import Action, FlightSettings, RtlOrder
 
 __all__ = [
     "PARAM_SPECS",
@@ -21,14 +27,21 @@ __all__ = [
     "SetOutcome",
     "decode_wire_value",
     "encode_wire_value",
+    "px4_settings",
 ]
 
 
 class ParamType(enum.IntEnum):
     """``MAV_PARAM_TYPE`` values we use."""
 
+    INT8 = 2
+    INT16 = 4
     INT32 = 6
     REAL32 = 9
+
+    @property
+    def is_integer(self) -> bool:
+        return self is not ParamType.REAL32
 
 
 @dataclass(frozen=True)
@@ -47,7 +60,7 @@ class ParamSpec:
         """``None`` if ``value`` is acceptable, else why not."""
         if not math.isfinite(value):
             return f"{self.name}: value must be finite, got {value}"
-        if self.type is ParamType.INT32 and value != int(value):
+        if self.type.is_integer and value != int(value):
             return f"{self.name}: integer parameter, got {value}"
         if not self.min <= value <= self.max:
             return f"{self.name}: {value:g} out of range [{self.min:g}, {self.max:g}]"
@@ -103,6 +116,21 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     _f("RTL_DESCEND_ALT", 30.0, 2.0, 500.0, "m", "RTL: descend to this altitude above home before landing"),
     _f("RTL_LAND_DELAY", 0.0, -1.0, 300.0, "s", "RTL: hover this long before landing (-1: hover forever)"),
     _f("RTL_RETURN_ALT", 60.0, 0.0, 1000.0, "m", "RTL: climb to at least this altitude above home"),
+    # Follow-me (AUTO.FOLLOW_TARGET) and orbit
+    _f("FLW_TGT_HT", 8.0, 8.0, 1000.0, "m", "Follow-me: height above home (FLW_TGT_ALT_M 0) or above the target (2)"),
+    _f("FLW_TGT_DST", 8.0, 1.0, 1000.0, "m", "Follow-me: horizontal distance to the target"),
+    _f("FLW_TGT_FA", 180.0, -180.0, 180.0, "deg", "Follow-me: angle from the target's heading (0 front, 180 behind)"),
+    _f("FLW_TGT_RS", 0.1, 0.0, 1.0, "norm", "Follow-me: target filter (0 follows at once, 1 smooths most)"),
+    _i(
+        "FLW_TGT_ALT_M",
+        0,
+        0,
+        2,
+        "Follow-me altitude: 0 height above home, 1 (terrain: as 0), 2 target's + height",
+        (0, 1, 2),
+    ),
+    _f("FLW_TGT_MAX_VEL", 5.0, 0.0, 20.0, "m/s", "Follow-me: maximum speed around the target"),
+    _f("MC_ORBIT_RAD_MAX", 1000.0, 1.0, 10000.0, "m", "Orbit: largest radius DO_ORBIT accepts"),
     # Multicopter position control
     _f("MPC_ACC_DOWN_MAX", 3.0, 1.0, 15.0, "m/s^2", "Maximum downward acceleration"),
     _f("MPC_ACC_HOR", 3.0, 1.0, 15.0, "m/s^2", "Maximum horizontal acceleration in auto modes"),
@@ -141,22 +169,25 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-def encode_wire_value(value: float, ptype: ParamType) -> float:
-    """Value as it travels in ``PARAM_VALUE.param_value`` (bytewise for integers)."""
-    if ptype is ParamType.INT32:
+def encode_wire_value(value: float, ptype: ParamType, *, bytewise: bool = True) -> float:
+    """Value as it travels in ``PARAM_VALUE.param_value``: integers bytewise (PX4) or cast to float (ArduPilot)."""
+    if bytewise and ptype.is_integer:
         return float(struct.unpack("<f", struct.pack("<i", int(value)))[0])
     return float(value)
 
 
-def decode_wire_value(wire: float, wire_type: int, spec: ParamSpec) -> float | None:  # noqa: PLR0911
+def decode_wire_value(wire: float, wire_type: int, spec: ParamSpec, *, bytewise: bool = True) -> float | None:  # noqa: PLR0911
     """Value a client meant by ``PARAM_SET(param_value=wire, param_type=wire_type)``.
 
-    Integer types are decoded bytewise (PX4 convention). A REAL32 sent for an
-    integer parameter is accepted when it is integral (some tools do that).
+    With ``bytewise`` (PX4), integer types are decoded bytewise; a REAL32 sent for an
+    integer parameter is accepted when it is integral (some tools do that). Without
+    (ArduPilot), every type carries the value as a float.
     Returns ``None`` when the bits cannot be a value of this parameter.
     """
     if not isinstance(wire, float):
         return None
+    if not bytewise:
+        return wire if 1 <= wire_type <= 10 else None
     if wire_type in (1, 2, 3, 4, 5, 6):  # UINT8..INT32: the low bytes carry the integer
         raw = struct.unpack("<i", struct.pack("<f", wire))[0]
         if wire_type == 1:
@@ -183,17 +214,41 @@ class SetOutcome:
 
 
 class ParamTable:
-    """Values of every parameter, in a stable (sorted) index order."""
+    """Values of every parameter, in a stable (sorted) index order.
 
-    def __init__(self, specs: tuple[ParamSpec, ...] = PARAM_SPECS, defaults: Mapping[str, float] | None = None) -> None:
+    Args:
+        specs: the personality's parameters (PX4's by default).
+        defaults: values replacing the built-in defaults (from the configuration).
+        settings_of: builds the :class:`FlightSettings` from this table (PX4's mapping by default).
+        unknown_hint: what to add to "unknown parameter X" (e.g. which personality has X).
+        cross_check: extra validation of a write ``(table, name, value) -> problem or None``.
+
+    Raises:
+        ValueError: a default names an unknown parameter or is out of range.
+    """
+
+    def __init__(
+        self,
+        specs: tuple[ParamSpec, ...] = PARAM_SPECS,
+        defaults: Mapping[str, float] | None = None,
+        *,
+        settings_of: Callable[[ParamTable], FlightSettings] | None = None,
+        unknown_hint: Callable[[str], str] | None = None,
+        cross_check: Callable[[ParamTable, str, float], str | None] | None = None,
+    ) -> None:
         self._specs = {s.name: s for s in sorted(specs, key=lambda s: s.name)}
         self._names = tuple(self._specs)
         self._index = {name: i for i, name in enumerate(self._names)}
         self._defaults = {name: spec.default for name, spec in self._specs.items()}
+        self._settings_of = settings_of if settings_of is not None else px4_settings
+        self._unknown_hint = unknown_hint
+        self._extra_check = cross_check if cross_check is not None else _px4_cross_check
+        self._settings: FlightSettings | None = None
+        self._settings_version = -1
         for name, value in (defaults or {}).items():
             spec = self._specs.get(name)
             if spec is None:
-                msg = f"unknown parameter {name!r}"
+                msg = self.unknown_message(name)
                 raise ValueError(msg)
             problem = spec.check(float(value))
             if problem:
@@ -205,6 +260,19 @@ class ParamTable:
     @property
     def names(self) -> tuple[str, ...]:
         return self._names
+
+    @property
+    def settings(self) -> FlightSettings:
+        """The values as the core reads them (rebuilt after a change only)."""
+        if self._settings is None or self._settings_version != self.version:
+            self._settings = self._settings_of(self)
+            self._settings_version = self.version
+        return self._settings
+
+    def unknown_message(self, name: str) -> str:
+        """``unknown parameter 'X'``, plus which personality has it when that is known."""
+        hint = self._unknown_hint(name) if self._unknown_hint is not None else ""
+        return f"unknown parameter {name!r}" + (f": {hint}" if hint else "")
 
     def __len__(self) -> int:
         return len(self._names)
@@ -228,7 +296,7 @@ class ParamTable:
         """Validate and store; ``force`` also writes read-only parameters (start-up only)."""
         spec = self._specs.get(name)
         if spec is None:
-            return SetOutcome(False, math.nan, f"unknown parameter {name!r}")
+            return SetOutcome(False, math.nan, self.unknown_message(name))
         current = self._values[name]
         if spec.read_only and not force:
             if value == current:
@@ -236,20 +304,13 @@ class ParamTable:
             return SetOutcome(False, current, f"{name} is read-only")
         problem = spec.check(value)
         if problem is None:
-            problem = self._cross_check(name, value)
+            problem = self._extra_check(self, name, value)
         if problem is not None:
             return SetOutcome(False, current, problem)
         if value != current:
             self._values[name] = float(value)
             self.version += 1
         return SetOutcome(True, float(value))
-
-    def _cross_check(self, name: str, value: float) -> str | None:
-        low = value if name == "BAT_LOW_THR" else self._values["BAT_LOW_THR"]
-        crit = value if name == "BAT_CRIT_THR" else self._values["BAT_CRIT_THR"]
-        if name in ("BAT_LOW_THR", "BAT_CRIT_THR") and crit >= low:
-            return f"{name}: need BAT_CRIT_THR ({crit:g}) < BAT_LOW_THR ({low:g})"
-        return None
 
     def changed_from_default(self) -> dict[str, float]:
         """Values differing from the defaults: what the parameter file persists."""
@@ -260,7 +321,7 @@ class ParamTable:
         problems = []
         for name, raw in values.items():
             if name not in self._specs:
-                problems.append(f"unknown parameter {name!r} ignored")
+                problems.append(f"{self.unknown_message(name)}; ignored")
                 continue
             if not isinstance(raw, int | float) or isinstance(raw, bool):
                 problems.append(f"{name}: not a number ({raw!r}), ignored")
@@ -269,3 +330,84 @@ class ParamTable:
             if not outcome.accepted:
                 problems.append(f"{outcome.reason}; kept {outcome.value:g}")
         return problems
+
+
+def _px4_cross_check(table: ParamTable, name: str, value: float) -> str | None:
+    if name not in ("BAT_LOW_THR", "BAT_CRIT_THR"):
+        return None
+    low = value if name == "BAT_LOW_THR" else table["BAT_LOW_THR"]
+    crit = value if name == "BAT_CRIT_THR" else table["BAT_CRIT_THR"]
+    if crit >= low:
+        return f"{name}: need BAT_CRIT_THR ({crit:g}) < BAT_LOW_THR ({low:g})"
+    return None
+
+
+_PX4_DLL = {1: Action.HOLD, 2: Action.RETURN, 3: Action.LAND}
+_PX4_OBL = {0: Action.POSITION, 3: Action.RETURN, 4: Action.LAND, 5: Action.HOLD}
+_PX4_RCL = {0: Action.HOLD, 1: Action.HOLD, 2: Action.RETURN, 3: Action.LAND}
+_PX4_GF = {1: Action.WARN, 2: Action.HOLD, 3: Action.RETURN, 5: Action.LAND}
+
+
+def px4_settings(p: ParamTable) -> FlightSettings:
+    """PX4's parameters as the core reads them (the same numbers, in the same units)."""
+    low_bat_act = int(p["COM_LOW_BAT_ACT"]) == 3
+    disarm_land = p["COM_DISARM_LAND"]
+    disarm_preflight = p["COM_DISARM_PRFLT"]
+    return FlightSettings(
+        gains=ControlGains.from_params(p),
+        cruise_speed_mps=p["MPC_XY_CRUISE"],
+        max_speed_xy_mps=p["MPC_XY_VEL_MAX"],
+        offboard_speed_xy_mps=p["MPC_XY_VEL_MAX"],
+        climb_speed_mps=p["MPC_Z_VEL_MAX_UP"],
+        descent_speed_mps=p["MPC_Z_VEL_MAX_DN"],
+        acc_xy_mps2=p["MPC_ACC_HOR"],
+        acc_up_mps2=p["MPC_ACC_UP_MAX"],
+        acc_down_mps2=p["MPC_ACC_DOWN_MAX"],
+        takeoff_speed_mps=p["MPC_TKO_SPEED"],
+        takeoff_alt_m=p["MIS_TAKEOFF_ALT"],
+        acceptance_xy_m=p["NAV_ACC_RAD"],
+        acceptance_z_m=p["NAV_MC_ALT_RAD"],
+        land_speed_mps=p["MPC_LAND_SPEED"],
+        land_fast_speed_mps=max(p["MPC_LAND_SPEED"], p["MPC_Z_VEL_MAX_DN"]),
+        land_slow_below_m=5.0,
+        land_fast_above_m=10.0,
+        rtl_return_alt_m=p["RTL_RETURN_ALT"],
+        rtl_climb_min_m=0.0,
+        rtl_descend_alt_m=p["RTL_DESCEND_ALT"],
+        rtl_loiter_s=p["RTL_LAND_DELAY"],
+        rtl_final_alt_m=0.0,
+        rtl_speed_mps=math.nan,
+        rtl_order=RtlOrder.DESCEND_THEN_WAIT,
+        manual_tilt_max_rad=math.radians(p["MPC_MAN_TILT_MAX"]),
+        manual_yaw_rate_max_radps=math.radians(p["MPC_MAN_Y_MAX"]),
+        disarm_after_landing_s=disarm_land if disarm_land > 0.0 else math.nan,
+        disarm_preflight_s=disarm_preflight if disarm_preflight > 0.0 else math.nan,
+        battery_low_remaining=p["BAT_LOW_THR"],
+        battery_critical_remaining=p["BAT_CRIT_THR"],
+        battery_low_voltage_v=0.0,
+        battery_critical_voltage_v=0.0,
+        battery_voltage_timer_s=0.0,
+        battery_low_action=Action.RETURN if low_bat_act else Action.WARN,
+        battery_critical_action=Action.LAND if low_bat_act else Action.WARN,
+        datalink_timeout_s=p["COM_DL_LOSS_T"],
+        datalink_action=_PX4_DLL.get(int(p["NAV_DLL_ACT"])),
+        datalink_sysid=0,
+        offboard_timeout_s=p["COM_OF_LOSS_T"],
+        offboard_loss_action=_PX4_OBL.get(int(p["COM_OBL_RC_ACT"]), Action.HOLD),
+        manual_timeout_s=p["COM_RC_LOSS_T"],
+        manual_loss_action=_PX4_RCL.get(int(p["NAV_RCL_ACT"]), Action.HOLD),
+        fence_radius_m=p["GF_MAX_HOR_DIST"],
+        fence_max_alt_m=p["GF_MAX_VER_DIST"],
+        fence_action=_PX4_GF.get(int(p["GF_ACTION"])),
+        fence_uploaded=True,
+        disarm_on_ground_failsafe=False,
+        guided_takeoff_required=False,
+        guided_timeout_s=math.nan,
+        orbit_radius_max_m=p["MC_ORBIT_RAD_MAX"],
+        follow_height_m=p["FLW_TGT_HT"],
+        follow_distance_m=p["FLW_TGT_DST"],
+        follow_angle_rad=math.radians(p["FLW_TGT_FA"]),
+        follow_responsiveness=p["FLW_TGT_RS"],
+        follow_altitude_mode=int(p["FLW_TGT_ALT_M"]),
+        follow_max_speed_mps=p["FLW_TGT_MAX_VEL"],
+    )

@@ -10,10 +10,12 @@ from __future__ import annotations
 import enum
 
 __all__ = [
+    "AttitudeTargetMask",
     "LandedState",
     "MavCmd",
     "MavFrame",
     "MavMissionResult",
+    "MavProtocolCapability",
     "MavResult",
     "MavSeverity",
     "MavState",
@@ -26,13 +28,29 @@ __all__ = [
 class MavCmd(enum.IntEnum):
     NAV_WAYPOINT = 16
     NAV_LOITER_UNLIM = 17
+    NAV_LOITER_TURNS = 18
     NAV_LOITER_TIME = 19
     NAV_RETURN_TO_LAUNCH = 20
     NAV_LAND = 21
     NAV_TAKEOFF = 22
+    NAV_LOITER_TO_ALT = 31
+    DO_ORBIT = 34
+    NAV_DELAY = 93
+    CONDITION_DELAY = 112
+    CONDITION_YAW = 115
     DO_SET_MODE = 176
+    DO_JUMP = 177
     DO_CHANGE_SPEED = 178
+    DO_SET_HOME = 179
+    DO_LAND_START = 189
     DO_REPOSITION = 192
+    DO_SET_ROI_LOCATION = 195
+    DO_SET_ROI_NONE = 197
+    DO_DIGICAM_CONTROL = 203
+    DO_MOUNT_CONFIGURE = 204
+    DO_MOUNT_CONTROL = 205
+    DO_SET_CAM_TRIGG_DIST = 206
+    DO_SET_CAM_TRIGG_INTERVAL = 214
     DO_SET_MISSION_CURRENT = 224
     MISSION_START = 300
     COMPONENT_ARM_DISARM = 400
@@ -41,6 +59,20 @@ class MavCmd(enum.IntEnum):
     SET_MESSAGE_INTERVAL = 511
     REQUEST_MESSAGE = 512
     REQUEST_AUTOPILOT_CAPABILITIES = 520
+    SET_CAMERA_MODE = 530
+    SET_CAMERA_ZOOM = 531
+    SET_CAMERA_FOCUS = 532
+    DO_GIMBAL_MANAGER_PITCHYAW = 1000
+    DO_GIMBAL_MANAGER_CONFIGURE = 1001
+    IMAGE_START_CAPTURE = 2000
+    IMAGE_STOP_CAPTURE = 2001
+    VIDEO_START_CAPTURE = 2500
+    VIDEO_STOP_CAPTURE = 2501
+    NAV_FENCE_POLYGON_VERTEX_INCLUSION = 5001
+    NAV_FENCE_POLYGON_VERTEX_EXCLUSION = 5002
+    NAV_FENCE_CIRCLE_INCLUSION = 5003
+    NAV_FENCE_CIRCLE_EXCLUSION = 5004
+    NAV_RALLY_POINT = 5100
     USER_1 = 31010
 
 
@@ -48,6 +80,27 @@ SIM_STEP = MavCmd.USER_1
 """The simulation link's lockstep grant (docs/architecture.md)."""
 
 FORCE_ARM_MAGIC = 21196.0
+
+
+class MavProtocolCapability(enum.IntFlag):
+    """``MAV_PROTOCOL_CAPABILITY`` bits (AUTOPILOT_VERSION.capabilities)."""
+
+    MISSION_FLOAT = 1
+    PARAM_FLOAT = 2
+    MISSION_INT = 4
+    COMMAND_INT = 8
+    PARAM_ENCODE_BYTEWISE = 16
+    FTP = 32
+    SET_ATTITUDE_TARGET = 64
+    SET_POSITION_TARGET_LOCAL_NED = 128
+    SET_POSITION_TARGET_GLOBAL_INT = 256
+    TERRAIN = 512
+    FLIGHT_TERMINATION = 2048
+    COMPASS_CALIBRATION = 4096
+    MAVLINK2 = 8192
+    MISSION_FENCE = 16384
+    MISSION_RALLY = 32768
+    PARAM_ENCODE_C_CAST = 131072
 
 
 class MavResult(enum.IntEnum):
@@ -149,6 +202,17 @@ class PositionTargetMask(enum.IntFlag):
     YAW_RATE_IGNORE = 2048
 
 
+class AttitudeTargetMask(enum.IntFlag):
+    """``type_mask`` bits of SET_ATTITUDE_TARGET: a set bit means *ignore*."""
+
+    BODY_ROLL_RATE_IGNORE = 1
+    BODY_PITCH_RATE_IGNORE = 2
+    BODY_YAW_RATE_IGNORE = 4
+    THRUST_BODY_SET = 32
+    THROTTLE_IGNORE = 64
+    ATTITUDE_IGNORE = 128
+
+
 class MsgId(enum.IntEnum):
     """Message ids the autopilot produces or that commands refer to."""
 
@@ -165,10 +229,12 @@ class MsgId(enum.IntEnum):
     MISSION_CURRENT = 42
     GPS_GLOBAL_ORIGIN = 49
     VFR_HUD = 74
+    ATTITUDE_TARGET = 83
     POSITION_TARGET_LOCAL_NED = 85
     HIGHRES_IMU = 105
     TIMESYNC = 111
     ALTITUDE = 141
+    FOLLOW_TARGET = 144
     BATTERY_STATUS = 147
     AUTOPILOT_VERSION = 148
     HOME_POSITION = 242

@@ -88,6 +88,16 @@ class StreamScheduler:
         self._heap: list[tuple[float, int, int, int]] = [(0.0, i, m, 0) for i, m in enumerate(sorted(self._period_s))]
         heapq.heapify(self._heap)
 
+    def copy(self) -> StreamScheduler:
+        """An independent scheduler in the same state (same next send times)."""
+        other = StreamScheduler.__new__(StreamScheduler)
+        other._defaults = dict(self._defaults)
+        other._max_rate_hz = self._max_rate_hz
+        other._period_s = dict(self._period_s)
+        other._generation = dict(self._generation)
+        other._heap = list(self._heap)
+        return other
+
     def set_interval(self, msg_id: int, interval_us: float, t_s: float) -> MavResult:
         """MAV_CMD_SET_MESSAGE_INTERVAL: 0 restores the default, -1 stops the stream."""
         if msg_id not in PRODUCIBLE or msg_id in _ON_REQUEST_ONLY:

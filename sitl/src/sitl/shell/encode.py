@@ -16,23 +16,20 @@ from sitl.core.control import Setpoint
 from sitl.core.failsafe import FailsafeKind
 from sitl.core.modes import FlightMode
 from sitl.core.params import ParamTable, encode_wire_value
+from sitl.core.personality import PX4
 from sitl.core.protocol import MissionState, MsgId
 from sitl.shell.links import mavlink
+from sitl.shell.wire import WirePackers
 from sitl.vehicle import Vehicle
 
 __all__ = ["AUTOPILOT_CAPABILITIES", "FLIGHT_SW_VERSION", "Encoder", "statustext_chunks"]
 
-AUTOPILOT_CAPABILITIES = (
-    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-)
+#: What AUTOPILOT_VERSION advertises for the default (PX4) personality: exactly what is implemented
+#: (missions INT and float, COMMAND_INT, bytewise parameters, position and attitude targets, fences, MAVLink 2;
+#: no rally points, FTP, terrain or flight termination). The ArduPilot personality's are in its Personality.
+AUTOPILOT_CAPABILITIES = PX4.capabilities
 # PX4 version encoding: major << 24 | minor << 16 | patch << 8 | type (255 = release). We claim 1.14.0.
-FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255
+FLIGHT_SW_VERSION = PX4.flight_sw_version
 
 # Sensors we simulate; PREARM_CHECK in health means "armable" (MAVSDK health.is_armable).
 _S = mavlink
@@ -104,8 +101,11 @@ class Encoder:
         self.load_permille = 0
         self.errors_comm = 0
         self.factory = mavlink.MAVLink(None)
+        self.fast = WirePackers()
+        self.personality = vehicle.autopilot.personality
         self._chunk_id = 0
-        self._builders = self._table()
+        #: message id -> builder (what :meth:`build` dispatches through; the gateway's stream loop calls it directly)
+        self.builders = self._table()
 
     @property
     def time_boot_ms(self) -> int:
@@ -117,7 +117,7 @@ class Encoder:
 
     def build(self, msg_id: int) -> Any | None:
         """The message for a stream or a REQUEST_MESSAGE; ``None`` if it cannot be produced."""
-        builder = self._builders.get(msg_id)
+        builder = self.builders.get(msg_id)
         return None if builder is None else builder()
 
     def _table(self) -> dict[int, Callable[[], Any]]:
@@ -145,27 +145,27 @@ class Encoder:
 
     def extended_sys_state(self) -> Any:
         ap = self.v.autopilot
-        return self.factory.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
+        return self.fast.extended_sys_state(mavlink.MAV_VTOL_STATE_UNDEFINED, int(ap.landed_state))
 
     def attitude(self) -> Any:
         s = self.v.est.full
         r, p, y = s.euler_rad
-        return self.factory.attitude_encode(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
+        return self.fast.attitude(self.time_boot_ms, r, p, y, *s.rates_frd_radps)
 
     def attitude_quaternion(self) -> Any:
         s = self.v.est.full
-        return self.factory.attitude_quaternion_encode(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
+        return self.fast.attitude_quaternion(self.time_boot_ms, *s.q_wxyz, *s.rates_frd_radps)
 
     def local_position_ned(self) -> Any:
         e = self.v.est
-        return self.factory.local_position_ned_encode(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
+        return self.fast.local_position_ned(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
 
     def altitude(self) -> Any:
         e = self.v.est
         amsl = e.full.alt_amsl_m
         rel = -e.pos_ned_m[2]
         agl = e.full.height_above_ground_m
-        return self.factory.altitude_encode(self.time_usec, amsl, amsl, rel, rel, agl, agl)
+        return self.fast.altitude(self.time_usec, amsl, amsl, rel, rel, agl, agl)
 
     def vfr_hud(self) -> Any:
         e = self.v.est
@@ -173,11 +173,11 @@ class Encoder:
         speed = math.hypot(vn, ve)
         heading = int(math.degrees(e.yaw_rad) % 360.0) % 360
         throttle = _clamp_int(100.0 * self.v.autopilot.thrust, 0, 100)
-        return self.factory.vfr_hud_encode(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
+        return self.fast.vfr_hud(speed, speed, heading, throttle, e.full.alt_amsl_m, -vd)
 
     def system_time(self) -> Any:
         unix_us = round(self.unix_epoch_s * 1e6) + sim_time_us(self.v.t_s)
-        return self.factory.system_time_encode(unix_us, self.time_boot_ms)
+        return self.fast.system_time(unix_us, self.time_boot_ms)
 
     def gps_global_origin(self) -> Any:
         h = self.v.home
@@ -188,11 +188,12 @@ class Encoder:
     # ------------------------------------------------------------------ messages
     def heartbeat(self) -> Any:
         ap = self.v.autopilot
-        return self.factory.heartbeat_encode(
+        p = self.personality
+        return self.fast.heartbeat(
             mavlink.MAV_TYPE_QUADROTOR,
-            mavlink.MAV_AUTOPILOT_PX4,
-            ap.mode.base_mode(armed=ap.armed),
-            ap.mode.custom_mode,
+            p.mav_autopilot,
+            p.base_mode(ap.mode, armed=ap.armed),
+            p.custom_mode(ap.mode),
             int(ap.system_status),
         )
 
@@ -207,13 +208,15 @@ class Encoder:
         if ap.crashed:
             health &= ~(mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
         present = SENSORS
-        params = self.v.params
-        fence_on = int(params["GF_ACTION"]) != 0 and (params["GF_MAX_HOR_DIST"] > 0 or params["GF_MAX_VER_DIST"] > 0)
+        settings = ap.settings
+        fence_on = settings.fence_action is not None and (
+            settings.fence_radius_m > 0 or settings.fence_max_alt_m > 0 or not ap.fence_store.fence.empty
+        )
         if fence_on:
             present |= mavlink.MAV_SYS_STATUS_GEOFENCE
             if FailsafeKind.GEOFENCE not in ap.failsafe.active:
                 health |= mavlink.MAV_SYS_STATUS_GEOFENCE
-        return self.factory.sys_status_encode(
+        return self.fast.sys_status(
             present,
             present,
             health,
@@ -235,16 +238,16 @@ class Encoder:
         cell_mv = _clamp_int(b.cell_voltage_v * 1000.0, 0, UINT16_MAX - 1)
         voltages = [cell_mv if i < cells else UINT16_MAX for i in range(10)]
         ext = [cell_mv if 10 + i < cells else 0 for i in range(4)]
-        params = self.v.params
-        if b.remaining <= params["BAT_CRIT_THR"]:
+        settings = self.v.autopilot.settings
+        if b.remaining <= settings.battery_critical_remaining:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
-        elif b.remaining <= params["BAT_LOW_THR"]:
+        elif b.remaining <= settings.battery_low_remaining:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_LOW
         else:
             state = mavlink.MAV_BATTERY_CHARGE_STATE_OK
         remaining_mah = b.remaining * self.v.cfg.battery.capacity_mah
         time_remaining = int(remaining_mah * 3.6 / b.current_a) if b.current_a > 0.5 else 0
-        return self.factory.battery_status_encode(
+        return self.fast.battery_status(
             0,
             mavlink.MAV_BATTERY_FUNCTION_ALL,
             mavlink.MAV_BATTERY_TYPE_LIPO,
@@ -263,7 +266,7 @@ class Encoder:
         e = self.v.est
         s = e.full
         vn, ve, vd = e.vel_ned_mps
-        return self.factory.global_position_int_encode(
+        return self.fast.global_position_int(
             self.time_boot_ms,
             round(s.lat_deg * 1e7),
             round(s.lon_deg * 1e7),
@@ -282,7 +285,7 @@ class Encoder:
         ok = e.gps_ok
         speed = math.hypot(vn, ve)
         cog = _cdeg(math.atan2(ve, vn)) if speed > 0.2 else UINT16_MAX
-        return self.factory.gps_raw_int_encode(
+        return self.fast.gps_raw_int(
             self.time_usec,
             mavlink.GPS_FIX_TYPE_3D_FIX if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
             round(s.lat_deg * 1e7),
@@ -303,7 +306,7 @@ class Encoder:
 
     def home_position(self) -> Any:
         h = self.v.home
-        return self.factory.home_position_encode(
+        return self.fast.home_position(
             round(h.lat_deg * 1e7),
             round(h.lon_deg * 1e7),
             round(h.alt_amsl_m * 1000.0),
@@ -331,7 +334,7 @@ class Encoder:
         mz = r02 * mn + r12 * me + r22 * md
         pressure = _isa_pressure_hpa(s.alt_amsl_m)
         temperature = 15.0 - 0.0065 * s.alt_amsl_m
-        return self.factory.highres_imu_encode(
+        return self.fast.highres_imu(
             self.time_usec, ax, ay, az, *s.rates_frd_radps, mx, my, mz, pressure, 0.0, s.alt_amsl_m, temperature, 0x1FFF
         )
 
@@ -349,8 +352,7 @@ class Encoder:
         bx = (1 - 2 * (y * y + z * z)) * vn + 2 * (x * y + w * z) * ve + 2 * (x * z - w * y) * vd
         by = 2 * (x * y - w * z) * vn + (1 - 2 * (x * x + z * z)) * ve + 2 * (y * z + w * x) * vd
         bz = 2 * (x * z + w * y) * vn + 2 * (y * z - w * x) * ve + (1 - 2 * (x * x + y * y)) * vd
-        unknown = [math.nan] + [0.0] * 20
-        return self.factory.odometry_encode(
+        return self.fast.odometry_unknown_covariance(
             sim_time_us(s.t_s),
             mavlink.MAV_FRAME_LOCAL_NED,
             mavlink.MAV_FRAME_BODY_FRD,
@@ -360,9 +362,6 @@ class Encoder:
             by,
             bz,
             *s.rates_frd_radps,
-            unknown,
-            unknown,
-            0,
             mavlink.MAV_ESTIMATOR_TYPE_NAIVE if truth else mavlink.MAV_ESTIMATOR_TYPE_UNKNOWN,
             100,
         )
@@ -382,25 +381,32 @@ class Encoder:
         if not math.isfinite(sp.yaw_rad):
             mask |= 1024
         mask |= 64 | 128 | 256 | 2048
-        return self.factory.position_target_local_ned_encode(
+        return self.fast.position_target_local_ned(
             self.time_boot_ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *pos, *vsp, 0.0, 0.0, 0.0, yaw, 0.0
         )
 
     def mission_current(self) -> Any:
         ap = self.v.autopilot
-        total = len(ap.mission_store)
+        count = len(ap.mission_store)
         state = ap.mission_state
+        if self.personality.mission_home_item:
+            # ArduPilot: seq counts from 1 (item 0 is home); total excludes home; mission_mode 1 in AUTO else 0
+            total = max(count - 1, 0)
+            seq = min(ap.mission_current_seq, max(count - 1, 0))
+            mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 0
+            return self.fast.mission_current(seq, total, int(state), mode)
+        total = count
         seq = (
             min(ap.mission_current_seq, max(total - 1, 0)) if state is not MissionState.COMPLETE else max(total - 1, 0)
         )
         mode = 1 if ap.mode is FlightMode.AUTO_MISSION else 2
-        return self.factory.mission_current_encode(seq, total, int(state), mode)
+        return self.fast.mission_current(seq, total, int(state), mode)
 
     def autopilot_version(self) -> Any:
         uid = (0x5549_4C53 << 32) | self.system_id  # "UILS" + sysid: stable per instance
         return self.factory.autopilot_version_encode(
-            AUTOPILOT_CAPABILITIES,
-            FLIGHT_SW_VERSION,
+            self.personality.capabilities,
+            self.personality.flight_sw_version,
             0,
             0,
             0,
@@ -416,7 +422,7 @@ class Encoder:
         spec = params.spec(name)
         return self.factory.param_value_encode(
             name.encode("ascii"),
-            encode_wire_value(params[name], spec.type),
+            encode_wire_value(params[name], spec.type, bytewise=self.personality.int_params_bytewise),
             int(spec.type),
             len(params),
             params.index_of(name),

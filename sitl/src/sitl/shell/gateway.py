@@ -25,14 +25,21 @@ from sitl.core.mission_transfer import (
     MissionRequestOut,
     Peer,
 )
-from sitl.core.modes import BASE_MODE_CUSTOM_MODE_ENABLED, mode_from_custom_mode
-from sitl.core.offboard import OffboardRejection, setpoint_from_global_int, setpoint_from_local_ned
+from sitl.core.modes import BASE_MODE_CUSTOM_MODE_ENABLED
+from sitl.core.navigator import FollowTarget
+from sitl.core.offboard import (
+    OffboardRejection,
+    attitude_setpoint,
+    setpoint_from_global_int,
+    setpoint_from_local_ned,
+)
 from sitl.core.params import decode_wire_value
-from sitl.core.protocol import MavMissionResult, MavResult, MavSeverity, MsgId
+from sitl.core.protocol import MavCmd, MavMissionResult, MavResult, MavSeverity, MsgId
 from sitl.core.telemetry import NORMAL_RATES_HZ, ONBOARD_RATES_HZ, StreamScheduler
 from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import MavLink, Received, mavlink
 from sitl.vehicle import Vehicle
+from uav_common.geo import GeoPoint
 
 __all__ = ["Gateway"]
 
@@ -67,12 +74,18 @@ class Gateway:
     ) -> None:
         self.v = vehicle
         self.ap = vehicle.autopilot
+        self.personality = vehicle.autopilot.personality
         self.links = {name: link for name, (link, _) in links.items()}
         max_rate = 1.0 / vehicle.dt_s
-        self.streams = {
-            name: StreamScheduler(ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate)
-            for name, (_, profile) in links.items()
+        # links of the same profile share one scheduler (their streams are due at the same instants) until a
+        # SET_MESSAGE_INTERVAL on one of them gives that link its own copy (see _own_scheduler)
+        by_profile = {
+            profile: StreamScheduler(
+                ONBOARD_RATES_HZ if profile is StreamProfile.ONBOARD else NORMAL_RATES_HZ, max_rate
+            )
+            for _, profile in links.values()
         }
+        self.streams = {name: by_profile[profile] for name, (_, profile) in links.items()}
         self.system_id = system_id
         self.component_id = component_id
         self.encoder = Encoder(vehicle, unix_epoch_s=unix_epoch_s, system_id=system_id)
@@ -95,13 +108,31 @@ class Gateway:
             "MISSION_SET_CURRENT": self._on_mission_set_current,
             "SET_POSITION_TARGET_LOCAL_NED": self._on_set_position_target_local_ned,
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_set_position_target_global_int,
+            "SET_ATTITUDE_TARGET": self._on_set_attitude_target,
+            "FOLLOW_TARGET": self._on_follow_target,
             "MANUAL_CONTROL": self._on_manual_control,
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
         }
         self._next_due_s = 0.0
-        self._stream_links = [(self.streams[name], self.links[name]) for name in self.streams]
+        self._stream_links: list[tuple[StreamScheduler, list[MavLink]]] = []
+        self._group_streams()
+
+    def _group_streams(self) -> None:
+        groups: dict[int, tuple[StreamScheduler, list[MavLink]]] = {}
+        for name, sched in self.streams.items():
+            groups.setdefault(id(sched), (sched, []))[1].append(self.links[name])
+        self._stream_links = list(groups.values())
+
+    def _own_scheduler(self, link_name: str) -> StreamScheduler:
+        """The link's scheduler, first copied if other links share it (SET_MESSAGE_INTERVAL is per link)."""
+        sched = self.streams[link_name]
+        if sum(1 for other in self.streams.values() if other is sched) > 1:
+            sched = sched.copy()
+            self.streams[link_name] = sched
+            self._group_streams()
+        return sched
 
     # ================================================================== inbound
     def handle(self, rx: Received, wall_s: float) -> None:
@@ -145,7 +176,12 @@ class Gateway:
             link.send(msg)
 
     def _on_heartbeat(self, msg: Any, route: Hashable, wall_s: float) -> None:
-        if msg.type in _DATALINK_TYPES:
+        gcs_sysid = self.ap.settings.datalink_sysid
+        if gcs_sysid:
+            # ArduCopter: only the heartbeat of system SYSID_MYGCS is the ground station's
+            if msg.get_srcSystem() == gcs_sysid and msg.type != mavlink.MAV_TYPE_QUADROTOR:
+                self.ap.datalink_heard(self.v.t_s, wall_s)
+        elif msg.type in _DATALINK_TYPES:
             self.ap.datalink_heard(self.v.t_s, wall_s)
 
     # ------------------------------------------------------------------ commands
@@ -166,8 +202,10 @@ class Gateway:
         self._command(CommandRequest(msg.command, params, frame=msg.frame), msg, route)
 
     def _command(self, req: CommandRequest, msg: Any, route: Hashable) -> None:
-        streams = self.streams[route[0]] if isinstance(route, tuple) else None
-        assert streams is not None
+        assert isinstance(route, tuple)
+        streams = (
+            self._own_scheduler(route[0]) if req.command == MavCmd.SET_MESSAGE_INTERVAL else self.streams[route[0]]
+        )
         if any(math.isinf(p) for p in req.params):
             self._stats(route).rx_invalid_values += 1
         outcome = handle_command(req, self.ap, streams, self.v.t_s)
@@ -193,7 +231,7 @@ class Gateway:
         if not msg.base_mode & BASE_MODE_CUSTOM_MODE_ENABLED:
             self.ap.say(MavSeverity.CRITICAL, "SET_MODE without custom mode is not supported")
             return
-        mode = mode_from_custom_mode(msg.custom_mode)
+        mode = self.personality.mode_from_custom_mode(msg.custom_mode)
         if mode is None:
             self.ap.say(MavSeverity.CRITICAL, f"Mode change denied: unsupported custom_mode {msg.custom_mode}")
             return
@@ -221,6 +259,10 @@ class Gateway:
             name = _text(msg.param_id)
             if name not in params:
                 self._stats(route).rx_invalid_values += 1
+                hint = self.personality.unknown_param_hint(name)
+                if hint:  # a script written for the other autopilot: say so (real autopilots stay silent)
+                    self.ap.say(MavSeverity.WARNING, hint)
+                    self.flush_events()
                 return
         self.send_to(route, self.encoder.param_value(params, name))
 
@@ -231,10 +273,12 @@ class Gateway:
         name = _text(msg.param_id)
         if name not in params:
             self._stats(route).rx_invalid_values += 1
-            self.ap.say(MavSeverity.WARNING, f"Parameter {name[:16]!r} does not exist")
+            hint = self.personality.unknown_param_hint(name)
+            self.ap.say(MavSeverity.WARNING, hint or f"Parameter {name[:16]!r} does not exist")
             self.flush_events()
             return
-        value = decode_wire_value(msg.param_value, msg.param_type, params.spec(name))
+        bytewise = self.personality.int_params_bytewise
+        value = decode_wire_value(msg.param_value, msg.param_type, params.spec(name), bytewise=bytewise)
         if value is None:
             outcome_ok, reason = False, f"{name}: cannot decode value of type {msg.param_type}"
         else:
@@ -370,6 +414,26 @@ class Gateway:
         )
         self._offboard(sp, route, wall_s)
 
+    def _on_set_attitude_target(self, msg: Any, route: Hashable, wall_s: float) -> None:
+        if not self._for_us(msg, route):
+            return
+        q = (msg.q[0], msg.q[1], msg.q[2], msg.q[3])
+        rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
+        self._offboard(attitude_setpoint(msg.type_mask, q, rates, msg.thrust), route, wall_s)
+
+    def _on_follow_target(self, msg: Any, route: Hashable, wall_s: float) -> None:
+        """FOLLOW_TARGET (MAVSDK FollowMe, QGC): the target's position (and velocity, when estimated)."""
+        if not msg.est_capabilities & 1 or not (msg.lat or msg.lon):
+            return
+        if abs(msg.lat) > 900_000_000 or abs(msg.lon) > 1_800_000_000 or not math.isfinite(msg.alt):
+            self._stats(route).rx_invalid_values += 1
+            return
+        n, e, d = self.v.projection.to_ned(GeoPoint(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt))
+        vel = tuple(float(v) for v in msg.vel)
+        if not all(math.isfinite(v) for v in vel):  # PX4 uses the velocity whenever it is given
+            vel = (0.0, 0.0, 0.0)
+        self.ap.follow_target_update(FollowTarget(self.v.t_s, (n, e, d), (vel[0], vel[1], vel[2])))
+
     def _offboard(self, sp: Any, route: Hashable, wall_s: float) -> None:
         if isinstance(sp, OffboardRejection):
             self._stats(route).rx_invalid_values += 1
@@ -424,21 +488,26 @@ class Gateway:
         if t >= self._next_due_s:
             cache: dict[int, Any] = {}
             next_due = math.inf
-            for sched, link in self._stream_links:
+            builders = self.encoder.builders
+            for sched, links in self._stream_links:
                 if t >= sched.next_due_s:
                     for msg_id in sched.due(t):
                         m = cache.get(msg_id)
                         if m is None:
-                            m = self.encoder.build(msg_id)
+                            builder = builders.get(msg_id)
+                            m = None if builder is None else builder()
                             cache[msg_id] = m
                         if m is not None:
-                            link.send(m)
-                next_due = min(next_due, sched.next_due_s)
+                            for link in links:
+                                link.send(m)
+                due = sched.next_due_s
+                next_due = due if due < next_due else next_due
             self._next_due_s = next_due
-        if self.ap.events_pending:
+        ap = self.ap
+        if ap.heartbeat_due or ap.statustexts or ap.mission_progress.reached or ap.mission_current_changed:
             self.flush_events()
-        if self.ap.mission_server.upload_in_progress:
-            for out in self.ap.mission_server.tick(wall_s):
+        if ap.mission_server.upload_in_progress:
+            for out in ap.mission_server.tick(wall_s):
                 self._send_mission([out])
 
     def flush_events(self) -> None:

@@ -24,6 +24,7 @@ from fastcrc.crc16 import mcrf4xx
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.errors import LinkError
+from sitl.shell.wire import WireMessage
 from uav_common.mavlink_parser import reset_parser
 
 __all__ = [
@@ -141,8 +142,11 @@ def frame_v2(msg: Any, seq: int, system_id: int, component_id: int) -> bytes:
     The generated ``pack`` computes the payload and hands it to ``_pack``; the
     payload is taken from there, then header, trailing-zero truncation and the
     CRC (with the message's CRC_EXTRA) are done here. Checked against pymavlink
-    for every message we send (tests/unit/sitl/test_sitl_links.py).
+    for every message we send (tests/unit/sitl/test_sitl_links.py). A
+    :class:`~sitl.shell.wire.WireMessage` is framed from its payload directly.
     """
+    if isinstance(msg, WireMessage):
+        return msg.frame(seq, system_id, component_id)
     msg._pack = _return_payload
     try:
         payload: bytes = msg.pack(None)
@@ -193,6 +197,8 @@ class MavLink:
         enc = self.encoder
         if self.signing_key is not None:
             buf: bytes = msg.pack(enc)
+        elif isinstance(msg, WireMessage):
+            buf = msg.frame(enc.seq, enc.srcSystem, enc.srcComponent)
         else:
             buf = frame_v2(msg, enc.seq, enc.srcSystem, enc.srcComponent)
         enc.seq = (enc.seq + 1) % 256
@@ -336,11 +342,17 @@ class UdpLink(MavLink):
         Like PX4's mavlink module, several frames share one datagram (up to
         :attr:`BATCH_BYTES`); every MAVLink parser reads them one after another.
         """
-        buf = self.pack(msg)
+        enc = self.encoder
+        if self.signing_key is None and isinstance(msg, WireMessage):  # the streamed telemetry: framed here
+            buf = msg.frame(enc.seq, enc.srcSystem, enc.srcComponent)
+            enc.seq = (enc.seq + 1) % 256
+        else:
+            buf = self.pack(msg)
         if route is None:
-            self._batch += buf
+            batch = self._batch
+            batch += buf
             self._batch_count += 1
-            if len(self._batch) >= self.BATCH_BYTES:
+            if len(batch) >= self.BATCH_BYTES:
                 self.flush()
             return
         if isinstance(route, tuple) and route[0] == self.name:

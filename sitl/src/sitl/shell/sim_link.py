@@ -39,6 +39,8 @@ class Grant:
 class SimLink:
     """Ground-truth publisher and lockstep/collision/terrain receiver."""
 
+    EXPIRY_CHECK_S = 0.25
+
     def __init__(
         self,
         vehicle: Vehicle,
@@ -77,6 +79,8 @@ class SimLink:
         self.system_id = system_id
         self._clock = clock
         self._peers: dict[tuple[str, int], float] = {}
+        self._peer_list: list[tuple[str, int]] = []
+        self._last_expiry_s = -math.inf
         self._next_heartbeat_s = 0.0
         self._last_status = -1
         self.grants: list[Grant] = []
@@ -154,11 +158,16 @@ class SimLink:
     # ------------------------------------------------------------------ outbound
     def _live_peers(self) -> list[tuple[str, int]]:
         now = self._clock()
-        for peer, last in list(self._peers.items()):
-            if now - last > self.peer_timeout_s:
-                del self._peers[peer]
-                self.link.forget_peer(("sim", peer))
-        return list(self._peers)
+        if now - self._last_expiry_s >= self.EXPIRY_CHECK_S:  # the state goes out at 50 Hz: check 4 times a second
+            self._last_expiry_s = now
+            for peer, last in list(self._peers.items()):
+                if now - last > self.peer_timeout_s:
+                    del self._peers[peer]
+                    self.link.forget_peer(("sim", peer))
+            self._peer_list = list(self._peers)
+        elif len(self._peer_list) != len(self._peers):
+            self._peer_list = list(self._peers)
+        return self._peer_list
 
     def _send(self, msg: Any, peers: list[tuple[str, int]]) -> None:
         if not peers:
@@ -196,12 +205,11 @@ class SimLink:
             return
         v = self.v
         s = v.truth()
-        f = self.encoder.factory
         vn, ve, vd = s.vel_ned_mps
         g = s.gravity_mps2
         ax, ay, az = s.specific_force_frd_mps2
         speed_cms = round(math.sqrt(vn * vn + ve * ve + vd * vd) * 100.0)
-        hil = f.hil_state_quaternion_encode(
+        hil = self.encoder.fast.hil_state_quaternion(
             sim_time_us(s.t_s),
             list(s.q_wxyz),
             *s.rates_frd_radps,
@@ -218,9 +226,9 @@ class SimLink:
             _i16(az / g * 1000.0),
         )
         ap = v.autopilot
-        controls = [*v.duty, *([0.0] * 12)]
-        act = f.hil_actuator_controls_encode(
-            sim_time_us(s.t_s), controls, ap.mode.base_mode(armed=ap.armed), 1 if self.lockstep else 0
+        controls = [*v.duty, *_TWELVE_ZEROS]
+        act = self.encoder.fast.hil_actuator_controls(
+            sim_time_us(s.t_s), controls, ap.personality.base_mode(ap.mode, armed=ap.armed), 1 if self.lockstep else 0
         )
         # the three messages of one instant share a datagram (a MAVLink parser reads them in turn)
         frames = b"".join(self.link.pack(m) for m in (self.encoder.odometry(truth=True), hil, act))
@@ -237,5 +245,10 @@ class SimLink:
         self.sock.close()
 
 
+_TWELVE_ZEROS = (0.0,) * 12
+
+
 def _i16(value: float) -> int:
-    return int(max(-32767, min(32767, round(value))))
+    r = round(value)  # min() / max() written out (same result): six of these per state message
+    r = 32767 if r > 32767 else r
+    return int(-32767 if r < -32767 else r)

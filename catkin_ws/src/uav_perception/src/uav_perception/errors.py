@@ -3,14 +3,24 @@
 Every error raised on purpose by the package derives from :class:`PerceptionError`.
 Configuration mistakes are :class:`PerceptionConfigError`, also a
 :class:`uav_common.errors.ConfigError`. :class:`DepthError` lets callers catch everything
-the depth estimation and evaluation code raises at once.
+the depth estimation and evaluation code raises at once, :class:`DetectionError` what the
+detection contract, the geolocation and the stand-in detector raise.
 """
 
 from __future__ import annotations
 
-from uav_common.errors import ConfigError
+from uav_common.errors import ConfigError, ResourceError
 
-__all__ = ["DepthError", "DepthGeometryError", "DepthInputError", "PerceptionConfigError", "PerceptionError"]
+__all__ = [
+    "DepthError",
+    "DepthGeometryError",
+    "DepthInputError",
+    "DetectionError",
+    "DetectionInputError",
+    "PerceptionConfigError",
+    "PerceptionError",
+    "TerrainFileError",
+]
 
 
 class PerceptionError(Exception):
@@ -31,3 +41,15 @@ class DepthInputError(DepthError):
 
 class DepthGeometryError(DepthError):
     """A camera pose or a stereo geometry is unusable (NaN pose, degenerate baseline)."""
+
+
+class DetectionError(PerceptionError):
+    """Root of every error raised by the detection contract, geolocation and the stand-in detector."""
+
+
+class DetectionInputError(DetectionError):
+    """A detection input is malformed: intrinsics, image sizes, a depth image that does not match."""
+
+
+class TerrainFileError(DetectionError, ResourceError):
+    """A terrain model (DEM) file is missing, unreadable or malformed (the message names it)."""

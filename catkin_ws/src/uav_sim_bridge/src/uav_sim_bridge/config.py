@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import ConfigError, load_yaml_mapping, to_mapping
+from uav_common.config import ConfigError, from_mapping, load_yaml_mapping, to_mapping
 from uav_common.paths import config_dir
 from uav_common.robot import RobotDescription
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
@@ -32,6 +32,7 @@ __all__ = [
     "PublishConfig",
     "SimBridgeConfig",
     "SimLinkConfig",
+    "bridge_config",
     "default_cameras",
     "environment_preset_path",
     "environment_presets",
@@ -116,7 +117,18 @@ class GroundTruthDetectionsConfig(DetectionConfig):
     """``detections``: registration rules plus the cameras that produce detections."""
 
     cameras: tuple[str, ...] = ("forward", "nadir")
+    #: The truth for scoring (uav_msgs/DetectionArray: instance ids, true centres, ranges, visible fractions).
     topic: str = "/detections/ground_truth"
+    #: The same boxes as a box-only detector (vision_msgs/Detection2DArray), one topic per camera.
+    boxes_topic: str = "/detections/{camera}/ground_truth"
+    #: The class map for the boxes' class ids (null: config/detection_classes.yaml).
+    class_map: Path | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if "{camera}" not in self.boxes_topic:
+            msg = f"boxes_topic must contain {{camera}} (one topic per camera), got {self.boxes_topic!r}"
+            raise ValueError(msg)
 
 
 @dataclass(frozen=True)
@@ -272,3 +284,18 @@ def mounted_cameras(cameras: Any, robot: RobotDescription, *, source: str) -> di
             raise SimBridgeConfigError(msg) from err
         out[name] = {**(cam or {}), "mount": {"xyz_m": list(mount.xyz_m), "rpy_deg": list(mount.rpy_deg)}}
     return out
+
+
+def bridge_config(data: dict[str, Any], robot: RobotDescription, *, source: str) -> SimBridgeConfig:
+    """The bridge's configuration from its merged settings (``config/sim_bridge.yaml`` with any overrides) and the
+    robot description that places its cameras: what the node runs with, and what anything re-creating a run's
+    cameras (the data engine) must use. The ``environment`` preset is resolved here too (:func:`resolve_environment`).
+
+    Raises:
+        SimBridgeConfigError: a camera sets ``mount`` or has none in the robot description.
+        ConfigError: an unknown key or a wrong value (named with ``source``), an unknown environment preset.
+    """
+    merged = dict(data)
+    merged["cameras"] = mounted_cameras(merged.get("cameras"), robot, source=source)
+    merged["environment"] = resolve_environment(merged.get("environment"))  # its preset loaded, free values over it
+    return from_mapping(SimBridgeConfig, merged, source=source)

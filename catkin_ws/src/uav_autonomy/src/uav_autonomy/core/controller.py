@@ -19,6 +19,11 @@ States and transitions (see docs/autonomy.md for the full table):
   ``max_mode_attempts`` times. TAKEOFF then arms (retried likewise) and climbs
   ``takeoff_height_m``; on reaching it the controller enters the state that was
   asked for (HOLD by default). SCRIPTED ends in HOLD at the last waypoint.
+  On ArduPilot (GUIDED) the climb is the autopilot's: after arming the controller
+  sends MAV_CMD_NAV_TAKEOFF (again every ``mode_retry_s`` while the vehicle is still
+  on the ground, up to ``max_mode_attempts`` times) and sends no setpoint until the
+  takeoff altitude is reached, because ArduCopter lets a position target replace a
+  takeoff that has not left the ground.
 * ``RTL``, ``LAND``: no setpoints; the autopilot's mode is requested until the
   heartbeat confirms it; back to IDLE once landed and disarmed.
 * Yielding: if the heartbeat shows another mode while the controller owns the
@@ -286,6 +291,8 @@ class _Engagement:
     last_arm_request_wall_s: float | None = None
     armed_seen: bool = False
     takeoff_sent: bool = False
+    takeoff_attempts: int = 0
+    last_takeoff_request_s: float | None = None
     #: The autopilot's mode when OFFBOARD was first requested (a later RTL/LAND is a failsafe's, not ours).
     mode_at_request: FlightMode | None = None
 
@@ -617,7 +624,11 @@ class WaypointController:
             eng.armed_seen = True
         actions: list[Action] = []
         position, yaw = self._setpoint(t)
-        actions.append(SendSetpoint(position, yaw))
+        guided_climb = (
+            self._state is ControllerState.TAKEOFF and t.autopilot is Autopilot.ARDUPILOT and eng.takeoff_sent
+        )
+        if not guided_climb:  # ArduCopter: a target would replace the takeoff the autopilot is flying
+            actions.append(SendSetpoint(position, yaw))
         eng.setpoints_sent += 1
         if eng.first_setpoint_s is None:
             eng.first_setpoint_s = now_s
@@ -668,7 +679,7 @@ class WaypointController:
         eng.last_mode_request_wall_s = self._now_wall_s
         return [RequestMode(FlightMode.OFFBOARD)]
 
-    def _arm_and_takeoff(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action]:
+    def _arm_and_takeoff(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action]:  # noqa: PLR0911
         cfg = self.config
         if not t.armed:
             due = eng.last_arm_request_s is None or now_s - eng.last_arm_request_s >= cfg.arm_retry_s
@@ -683,8 +694,13 @@ class WaypointController:
             eng.last_arm_request_s = now_s
             eng.last_arm_request_wall_s = self._now_wall_s
             return [RequestArm(arm=True)]
-        if t.autopilot is Autopilot.ARDUPILOT and not eng.takeoff_sent:
+        if t.autopilot is not Autopilot.ARDUPILOT or t.in_air:
+            return []
+        due = eng.last_takeoff_request_s is None or now_s - eng.last_takeoff_request_s >= cfg.mode_retry_s
+        if due and eng.takeoff_attempts < cfg.max_mode_attempts:
             eng.takeoff_sent = True
+            eng.takeoff_attempts += 1
+            eng.last_takeoff_request_s = now_s
             return [RequestTakeoff(cfg.takeoff_height_m)]
         return []
 

@@ -346,6 +346,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, ports: RunPorts, out: Tex
     cmd = [
         "roslaunch", "-p", str(master_port), "uav_scenarios", launch,
         f"scenario:={scenario_path}", f"run_dir:={run_dir}", f"depth_source:={scenario.depth_source.value}",
+        f"detector:={scenario.perception.detector.value}",
         f"pose_source:={scenario.pose_source.value}", f"odometry_port:={ports.odometry}",
         f"record:={'true' if scenario.recording.enabled else 'false'}",
         f"world_cache_dir:={args.world_cache_dir}",

@@ -32,13 +32,17 @@ from uav_sim_bridge.core.motion import ActorsConfig
 __all__ = [
     "LINK_ENDPOINTS",
     "AutonomySpec",
+    "AutopilotKind",
     "DepthSource",
+    "DetectorKind",
     "FaultSpec",
+    "GeolocationSpec",
     "LinkImpairmentSpec",
     "LinkSpec",
     "MapBackend",
     "MapSpec",
     "MissionKind",
+    "PerceptionSpec",
     "PersonSpec",
     "PoseSource",
     "RecordingSpec",
@@ -82,6 +86,13 @@ class Strategy(enum.Enum):
 class TimeMode(enum.Enum):
     FREE = "free"
     LOCKSTEP = "lockstep"
+
+
+class AutopilotKind(enum.Enum):
+    """Which autopilot the simulated vehicle is (``uav-sitl --autopilot``); the controller adapts by itself."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
 
 
 class MapBackend(enum.Enum):
@@ -233,14 +244,17 @@ class SearchSpec:
     """Search and rescue: prior knowledge, detection, confirmation and the search area."""
 
     person: PersonSpec = field(default_factory=PersonSpec)
-    #: Detections feed: the bridge's ground truth, or any detector publishing the same type.
-    detection_topic: str = "/detections/ground_truth"
-    camera: str = "forward"
+    #: Moved: the detector and its camera are ``perception.detector`` and ``perception.camera`` (any run,
+    #: not only search and rescue, has a detector under test). Setting these is an error saying so.
+    detection_topic: str | None = None
+    camera: str | None = None
+    #: The ground truth's detection range (the bridge registers people and vehicles this close).
     detection_range_m: float = 100.0
     #: A person is confirmed after this many detections within ``confirm_window_s``.
     confirm_detections: int = 3
     confirm_window_s: float = 3.0
-    #: Where the scripted baselines search (and what "% of search area seen" refers to).
+    #: Where the scripted baselines search, and the only place a person is confirmed (a person seen elsewhere is
+    #: not the one searched for).
     area_m: tuple[Point2, ...] = ((-250.0, -450.0), (250.0, -450.0), (250.0, -50.0), (-250.0, -50.0))
     #: Lane spacing of the lawnmower / leg increment of the expanding square.
     track_spacing_m: float = 80.0
@@ -252,8 +266,19 @@ class SearchSpec:
     scripted_alt_reference: Literal["terrain", "home"] = "terrain"
     #: Hold (stop and stare) distance from the person once confirmed.
     hold_alt_m: float = 25.0
+    #: ``operator``: a candidate (``confirm_detections`` at one place) is checked as an operator looking through
+    #: the camera would, knowing who is missing: a bystander is turned down and the search goes on. ``none``: the
+    #: first candidate ends the search, right or wrong (the scorer says which: ``search.correct``).
+    verify: Literal["operator", "none"] = "operator"
 
     def __post_init__(self) -> None:
+        if self.detection_topic is not None or self.camera is not None:
+            msg = (
+                "search.detection_topic and search.camera have moved: set perception.detector "
+                "(ground_truth | degraded_truth | external, with perception.detector_topic) and perception.camera "
+                "(docs/scenarios.md); the detector's output is vision_msgs/Detection2DArray"
+            )
+            raise ValueError(msg)
         _check_polygon("area_m", self.area_m)
         if self.detection_range_m <= 0 or self.track_spacing_m <= 0 or self.scripted_alt_m <= 0:
             msg = "detection_range_m, track_spacing_m and scripted_alt_m must be > 0"
@@ -261,6 +286,86 @@ class SearchSpec:
         if self.confirm_detections < 1 or self.confirm_window_s <= 0:
             msg = "confirm_detections must be >= 1 and confirm_window_s > 0"
             raise ValueError(msg)
+
+
+class DetectorKind(enum.Enum):
+    """Who publishes the boxes under test (``vision_msgs/Detection2DArray``)."""
+
+    #: The simulator's ground truth as a box-only detector (``/detections/<camera>/ground_truth``).
+    GROUND_TRUTH = "ground_truth"
+    #: A test instrument, not a detector: the ground truth's boxes degraded, seeded (``degraded_detector``).
+    DEGRADED_TRUTH = "degraded_truth"
+    #: A detector you start yourself, publishing on ``perception.detector_topic``.
+    EXTERNAL = "external"
+
+
+@dataclass(frozen=True)
+class GeolocationSpec:
+    """How the geolocator places boxes (docs/perception.md)."""
+
+    #: Intersect with the detector camera's depth image first. The bridge then renders that camera fully
+    #: (color and depth, ~16 ms a frame instead of the instance ids alone): slower runs.
+    use_depth: bool = False
+    #: Give it the world's terrain as a prior terrain model (DEM), as a ground station has SRTM tiles.
+    terrain_model: bool = True
+    #: Give it the map server's elevation layer (``/map_server/layers``).
+    elevation_layer: bool = True
+    #: Further geolocator settings (``uav_perception.core.detection.geolocation.GeolocationConfig`` keys),
+    #: validated by the node.
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PerceptionSpec:
+    """The detector under test, its camera and operating point, and how its boxes are placed."""
+
+    detector: DetectorKind = DetectorKind.GROUND_TRUTH
+    #: ``external`` only: the ``vision_msgs/Detection2DArray`` topic of your detector.
+    detector_topic: str = ""
+    #: The camera the detector looks through; the tracker and the confirmation follow it.
+    camera: str = "forward"
+    #: Operating point: detections scoring lower are scored (AP, PR curves) but neither tracked nor confirmed.
+    score_threshold: float = 0.5
+    #: ``degraded_truth`` only: ``uav_perception.core.detection.degrade.DegradeConfig`` keys (seed, miss rates...).
+    degraded: dict[str, Any] = field(default_factory=dict)
+    geolocation: GeolocationSpec = field(default_factory=GeolocationSpec)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.score_threshold <= 1.0:
+            msg = f"score_threshold must be within [0, 1], got {self.score_threshold}"
+            raise ValueError(msg)
+        if self.detector is DetectorKind.EXTERNAL and not self.detector_topic.startswith("/"):
+            msg = "detector: external needs detector_topic, the absolute topic your detector publishes on"
+            raise ValueError(msg)
+        if self.detector is not DetectorKind.EXTERNAL and self.detector_topic:
+            msg = f"detector_topic is for detector: external; {self.detector.value} has its own topic"
+            raise ValueError(msg)
+        if self.degraded and self.detector is not DetectorKind.DEGRADED_TRUTH:
+            msg = "degraded settings are for detector: degraded_truth"
+            raise ValueError(msg)
+        if not self.camera or not all(c.isalnum() or c == "_" for c in self.camera):
+            msg = f"camera must be a camera name, got {self.camera!r}"
+            raise ValueError(msg)
+
+    @property
+    def boxes_topic(self) -> str:
+        """The ``vision_msgs/Detection2DArray`` topic under test."""
+        if self.detector is DetectorKind.GROUND_TRUTH:
+            return f"/detections/{self.camera}/ground_truth"
+        if self.detector is DetectorKind.DEGRADED_TRUTH:
+            return "/degraded_detector/detections"
+        return self.detector_topic
+
+    @property
+    def source(self) -> str:
+        """The detector's name in the geolocated detections (``uav_msgs/DetectionArray.source``)."""
+        if self.detector is DetectorKind.EXTERNAL:
+            return "external"
+        return f"{self.detector.value}_boxes" if self.detector is DetectorKind.GROUND_TRUTH else self.detector.value
+
+
+#: The geolocator's output: every detector box, placed in map (uav_msgs/DetectionArray).
+GEOLOCATED_TOPIC = "/geolocator/detections"
 
 
 #: Router endpoints of a run whose radio link a scenario can make lossy (docs/mavlink_router.md).
@@ -443,6 +548,8 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         "/autonomy/weights",
         "/autonomy/target_point",
         "/detections/ground_truth",
+        GEOLOCATED_TOPIC,
+        "/geolocator/status",
         "/sim/collision",
         "/sim/object_states",
         "/map_server/insert_stats",
@@ -458,6 +565,7 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         "/scenario/snapshot/forward/color",
         "/scenario/snapshot/forward/depth",
         "/scenario/snapshot/forward/instance",
+        "/scenario/snapshot/gallery",
         "/depth_evaluator/metrics",
         "/depth_estimator/status",
     ),
@@ -500,12 +608,28 @@ class ScoringSpec:
     range_bands_m: tuple[float, ...] = (0.0, 25.0, 50.0, 75.0, 100.0, 1000.0)
     view_angle_bands_deg: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)
     clutter_bands: tuple[float, ...] = (0.0, 1.0, 3.0, 1000.0)
+    #: Pixel size (square root of the box area) bands: TinyPerson's tiny1-3, small and reasonable.
+    pixel_size_bands_px: tuple[float, ...] = (1.0, 8.0, 12.0, 20.0, 32.0, 10000.0)
+    #: Visible fraction (occlusion) bands: CityPersons' bare (< 0.2), heavy (0.2-0.65) and reasonable.
+    visible_fraction_bands: tuple[float, ...] = (0.0, 0.2, 0.65, 1.0)
+    #: Worst false positives and worst misses kept (each) for the report's gallery; 0 = none.
+    gallery_size: int = 6
 
     def __post_init__(self) -> None:
         if self.metrics_rate_hz <= 0 or self.map_accuracy_period_s <= 0 or self.snapshot_max_cells < 16:
             msg = "metrics_rate_hz and map_accuracy_period_s must be > 0, snapshot_max_cells >= 16"
             raise ValueError(msg)
-        for name in ("altitude_bands_m", "range_bands_m", "view_angle_bands_deg", "clutter_bands"):
+        if not 0 <= self.gallery_size <= 50:
+            msg = f"gallery_size must be within [0, 50], got {self.gallery_size}"
+            raise ValueError(msg)
+        for name in (
+            "altitude_bands_m",
+            "range_bands_m",
+            "view_angle_bands_deg",
+            "clutter_bands",
+            "pixel_size_bands_px",
+            "visible_fraction_bands",
+        ):
             edges = getattr(self, name)
             if len(edges) < 2 or any(b <= a for a, b in itertools.pairwise(edges)):
                 msg = f"{name} must be at least 2 strictly ascending edges, got {edges}"
@@ -521,6 +645,8 @@ class Scenario:
     mission: MissionKind
     strategy: Strategy = Strategy.AUTONOMOUS
     description: str = ""
+    #: The simulated autopilot: ``px4`` or ``ardupilot`` (ArduCopter's modes, parameters and GUIDED takeoff).
+    autopilot: AutopilotKind = AutopilotKind.PX4
     world: WorldSpec = field(default_factory=WorldSpec)
     map: MapSpec = field(default_factory=MapSpec)
     depth_source: DepthSource = DepthSource.GROUND_TRUTH
@@ -538,6 +664,7 @@ class Scenario:
     stress_applied: tuple[str, ...] = ()
     autonomy: AutonomySpec = field(default_factory=AutonomySpec)
     search: SearchSpec | None = None
+    perception: PerceptionSpec = field(default_factory=PerceptionSpec)
     stop: StopCriteria = field(default_factory=StopCriteria)
     time: TimeSpec = field(default_factory=TimeSpec)
     recording: RecordingSpec = field(default_factory=RecordingSpec)
@@ -619,6 +746,7 @@ REPLAYED_TOPICS = (
     "/autonomy/target",
     "/autonomy/weights",
     "/detections/ground_truth",
+    GEOLOCATED_TOPIC,
     "/sim/collision",
     "/sim/object_states",
     "/scenario/status",
@@ -631,8 +759,6 @@ def played_topics(scenario: Scenario) -> tuple[str, ...]:
     topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
     if scenario.pose_source is PoseSource.AUTOPILOT:
         topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
-    if scenario.search is not None and scenario.search.detection_topic not in topics:
-        topics.append(scenario.search.detection_topic)
     return tuple(topics)
 
 
@@ -642,8 +768,8 @@ def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     topics = list(RECORDING_PRESETS["report"])
     if scenario.pose_source is PoseSource.AUTOPILOT:
         topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
-    if scenario.search is not None and scenario.search.detection_topic not in topics:
-        topics.append(scenario.search.detection_topic)
+    if scenario.perception.boxes_topic not in topics:
+        topics.append(scenario.perception.boxes_topic)  # the detector's own output, as it came
     if spec.preset == "replay":
         topics += RECORDING_PRESETS["replay"]
         topics += replay_inputs(scenario)

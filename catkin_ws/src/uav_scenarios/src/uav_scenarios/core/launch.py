@@ -94,6 +94,7 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
 
     * a private parameter file, reset at start (a run never inherits another run's parameters);
     * ``time.unix_epoch_s = 0`` (SYSTEM_TIME does not depend on the wall clock);
+    * the scenario's autopilot personality (``--autopilot``);
     * lockstep, or the scenario's speed factor;
     * ``node_params.sitl`` as ``--set`` overrides (any ``config/sitl.yaml`` key, e.g.
       ``failsafe.geofence_max_altitude_m``).
@@ -105,6 +106,7 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
         "--params-file", str(params_file),
         "--reset-params",
         "--set", "time.unix_epoch_s=0",
+        "--autopilot", scenario.autopilot.value,
     ]  # fmt: skip
     if router:
         argv += ["--no-gcs", "--no-api"]

@@ -18,6 +18,7 @@ from uav_scenarios.core.config import MissionKind, Scenario, StopCriteria, Strat
 from uav_scenarios.core.scoring.types import Detection
 
 __all__ = [
+    "CONFIRM_RADIUS_M",
     "Confirmation",
     "ConfirmationGate",
     "Phase",
@@ -27,6 +28,11 @@ __all__ = [
     "point_in_polygon",
     "resume_needed",
 ]
+
+
+#: A confirmation is a place: detections within this distance of each other confirm it, and the scorer counts a
+#: confirmation this close to the person of interest as finding them.
+CONFIRM_RADIUS_M = 10.0
 
 
 class Phase(enum.Enum):
@@ -133,38 +139,90 @@ class _Cluster:
     times: deque[float]
     ids: list[int]
     count: int = 0
+    #: The operator looked at this candidate and it is not the person searched for.
+    rejected: bool = False
 
 
 @dataclass
 class ConfirmationGate:
     """Confirms a person after ``needed`` detections within ``window_s`` at one place.
 
-    Detections are clustered by ground position (``gate_m``); a detector that gives
-    no position (NaN) cannot confirm a location and is ignored. The first cluster to
-    reach ``needed`` detections inside the window is the confirmation; later calls
-    return the same one.
+    Detections (the geolocator's: any detector's boxes placed in ``map``) are clustered by
+    ground position (``gate_m``). The first cluster to reach ``needed`` detections inside the
+    window is the confirmation; later calls return the same one.
+
+    A detection of the class scoring below ``min_score`` is counted (``below_threshold``); one
+    the geolocator could not place (NaN position) cannot confirm a place and is counted
+    (``unplaced``); so is one placed so vaguely that it could be anywhere in the gate (horizontal
+    1-sigma over ``gate_m``: ``too_uncertain``, e.g. a box near the horizon seen from low
+    altitude); so is one outside the search ``area`` (``outside_area``: a person there is not
+    the one searched for). The mission manager reports the counts: nothing is dropped unseen.
 
     ``instance_id`` is the person of interest: detections that name another instance
     (ground truth knows who everyone is) are someone else and never confirm; a
     detector that cannot tell people apart (instance id 0) is taken at its word.
+
+    A box-only detector cannot tell the person searched for from a bystander. With ``verify_xy``
+    (the person's position, standing in for the operator who looks at the candidate through the
+    camera and knows who they are looking for), a candidate farther than ``gate_m`` from it is
+    rejected (:attr:`rejections`), its place is remembered (later detections there are absorbed)
+    and the search goes on. Without it, the first candidate is the confirmation, right or wrong.
     """
 
     needed: int
     window_s: float
-    gate_m: float = 10.0
+    gate_m: float = CONFIRM_RADIUS_M
     class_name: str = "person"
     instance_id: int = 0
+    min_score: float = 0.0
+    #: The search area (polygon, map metres); empty = anywhere.
+    area: tuple[tuple[float, float], ...] = ()
     _clusters: list[_Cluster] = field(default_factory=list)
     confirmed: Confirmation | None = None
+    #: Detections of the class seen so far: used, without a position, below ``min_score``, too uncertain,
+    #: outside the search area.
+    used: int = 0
+    unplaced: int = 0
+    below_threshold: int = 0
+    too_uncertain: int = 0
+    outside_area: int = 0
+    #: The operator's check (see the class docstring); None = none.
+    verify_xy: tuple[float, float] | None = None
+    rejections: list[Confirmation] = field(default_factory=list)
+
+    def _sigma_m(self, det: Detection) -> float:
+        """Horizontal 1-sigma (major axis) of a placement; 0 when no covariance is given (ground truth)."""
+        cov = det.position_cov_m2
+        if len(cov) != 9 or not all(math.isfinite(c) for c in (cov[0], cov[1], cov[3], cov[4])):
+            return 0.0
+        xy = np.array([[cov[0], cov[1]], [cov[3], cov[4]]], dtype=np.float64)
+        return float(math.sqrt(max(0.0, float(np.linalg.eigvalsh(xy).max()))))
+
+    def _usable(self, det: Detection) -> bool:
+        """Whether a detection can count towards a confirmation; if not, it is counted by why."""
+        if det.class_name != self.class_name:
+            return False
+        if det.score < self.min_score:
+            self.below_threshold += 1
+            return False
+        if not det.placed:
+            self.unplaced += 1
+            return False
+        if self._sigma_m(det) > self.gate_m:
+            self.too_uncertain += 1
+            return False
+        if self.area and not point_in_polygon(det.position_m[0], det.position_m[1], self.area):
+            self.outside_area += 1
+            return False
+        return not (self.instance_id and det.instance_id not in (0, self.instance_id))
 
     def update(self, t_s: float, detections: tuple[Detection, ...]) -> Confirmation | None:
         if self.confirmed is not None:
             return self.confirmed
         for det in detections:
-            if det.class_name != self.class_name or not all(math.isfinite(v) for v in det.position_m):
+            if not self._usable(det):
                 continue
-            if self.instance_id and det.instance_id not in (0, self.instance_id):
-                continue
+            self.used += 1
             pos = np.asarray(det.position_m, dtype=np.float64)
             near = [c for c in self._clusters if float(np.linalg.norm(c.position[:2] - pos[:2])) <= self.gate_m]
             if near:
@@ -173,6 +231,8 @@ class ConfirmationGate:
                 cluster = _Cluster(pos.copy(), deque(), [])
                 self._clusters.append(cluster)
             cluster.count += 1
+            if cluster.rejected:
+                continue  # a candidate the operator has already turned down
             cluster.position = cluster.position + (pos - cluster.position) / cluster.count
             cluster.times.append(t_s)
             cluster.ids.append(det.instance_id)
@@ -181,7 +241,12 @@ class ConfirmationGate:
             if len(cluster.times) >= self.needed:
                 best_id = max(set(cluster.ids), key=cluster.ids.count)
                 p = cluster.position
-                self.confirmed = Confirmation(t_s, (float(p[0]), float(p[1]), float(p[2])), best_id, cluster.count)
+                candidate = Confirmation(t_s, (float(p[0]), float(p[1]), float(p[2])), best_id, cluster.count)
+                if self.verify_xy is not None and math.dist(self.verify_xy, (p[0], p[1])) > self.gate_m:
+                    cluster.rejected = True
+                    self.rejections.append(candidate)
+                    continue
+                self.confirmed = candidate
                 return self.confirmed
         return None
 

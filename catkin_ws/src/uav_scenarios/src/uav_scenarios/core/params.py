@@ -25,7 +25,9 @@ from uav_common.config import deep_merge, to_mapping
 from uav_common.robot import RobotDescription
 from uav_scenarios.core.config import (
     FEATURE_NAMES,
+    GEOLOCATED_TOPIC,
     DepthSource,
+    DetectorKind,
     MissionKind,
     PoseSource,
     Scenario,
@@ -55,6 +57,7 @@ class RunContext:
         cameras: the bridge's cameras for this run: name -> ``{pitch_deg, hfov_deg}``.
         scripted: a scripted baseline's controller request planned over the world's terrain
             (:func:`scripted_request`); None when not needed.
+        terrain_dem: the world's terrain model file for the geolocator ("" = none).
     """
 
     run_dir: str = ""
@@ -65,6 +68,7 @@ class RunContext:
     map_server_base: Mapping[str, Any] = field(default_factory=dict)
     cameras: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     scripted: Mapping[str, Any] | None = None
+    terrain_dem: str = ""
 
 
 def _target_xy(scenario: Scenario) -> list[list[float]]:
@@ -203,11 +207,37 @@ def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
 
 
 def tracker(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
-    search = scenario.search
+    perception = scenario.perception
     return {
-        "camera": search.camera if search else "forward",
-        "detections": search.detection_topic if search else "/detections/ground_truth",
+        "camera": perception.camera,
+        "detections": GEOLOCATED_TOPIC,
         "gate_m": scenario.scoring.track_gate_m,
+        "min_score": perception.score_threshold,
+    }
+
+
+def geolocator(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """The geolocator places the detector's boxes: its camera, input, depth, elevation layer and terrain model."""
+    perception = scenario.perception
+    geo = perception.geolocation
+    return {
+        "camera": perception.camera,
+        "detections": perception.boxes_topic,
+        "detector": perception.source,
+        "depth": f"/cameras/{perception.camera}/depth/image_raw" if geo.use_depth else "",
+        "elevation": "/map_server/layers" if geo.elevation_layer else "",
+        "terrain_dem": ctx.terrain_dem if geo.terrain_model else "",
+        "geolocation": dict(geo.params),
+    }
+
+
+def degraded_detector(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The stand-in (a test instrument): the ground truth's boxes of the detector camera, degraded."""
+    perception = scenario.perception
+    return {
+        "camera": perception.camera,
+        "input": f"/detections/{perception.camera}/ground_truth",
+        "degrade": dict(perception.degraded),
     }
 
 
@@ -223,6 +253,8 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "mission_manager": mission_manager,
     "scorer": scorer,
     "tracker": tracker,
+    "geolocator": geolocator,
+    "degraded_detector": degraded_detector,
 }
 
 
@@ -239,6 +271,16 @@ def node_params(scenario: Scenario, node: str, ctx: RunContext | None = None) ->
         msg = f"no settings for node {node!r}; known: {known}"
         raise ScenarioError(msg)
     return deep_merge(base or {}, extra or {})
+
+
+def needs_terrain_model(scenario: Scenario) -> bool:
+    """The geolocator gets the world's terrain as its prior terrain model."""
+    return scenario.perception.geolocation.terrain_model
+
+
+def uses_stand_in(scenario: Scenario) -> bool:
+    """The run starts the stand-in detector (``degraded_detector``)."""
+    return scenario.perception.detector is DetectorKind.DEGRADED_TRUTH
 
 
 def needs_person(scenario: Scenario) -> bool:

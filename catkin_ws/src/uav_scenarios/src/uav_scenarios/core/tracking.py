@@ -6,6 +6,12 @@ smooths each track with an alpha-beta (constant-velocity) filter, confirms a
 track after ``min_hits`` updates and drops it after ``max_coast_s`` without one.
 Time is passed in. The evaluation wraps py-motmetrics (CLEAR MOT and ID
 measures) with Euclidean matching of ground positions.
+
+The contract with a detector: positions come from the geolocator (any detector's
+boxes placed in ``map``). A detection it could not place (NaN position) or one
+scoring below the operating threshold cannot be tracked; the tracker counts each
+(:attr:`PositionTracker.unplaced`, :attr:`PositionTracker.below_threshold`) and the
+node reports the counts with every track frame: nothing is dropped unseen.
 """
 
 from __future__ import annotations
@@ -38,10 +44,15 @@ class TrackerConfig:
     #: alpha-beta filter gains (position, velocity).
     alpha: float = 0.6
     beta: float = 0.2
+    #: Operating threshold: detections scoring lower are counted, not tracked.
+    min_score: float = 0.0
 
     def __post_init__(self) -> None:
         if self.gate_m <= 0 or self.max_coast_s <= 0 or self.min_hits < 1:
             msg = "gate_m and max_coast_s must be > 0 and min_hits >= 1"
+            raise ValueError(msg)
+        if not 0.0 <= self.min_score <= 1.0:
+            msg = f"min_score must be within [0, 1], got {self.min_score}"
             raise ValueError(msg)
         if not (0 < self.alpha <= 1 and 0 <= self.beta <= 1):
             msg = "alpha must be in (0, 1] and beta in [0, 1]"
@@ -69,10 +80,16 @@ class PositionTracker:
     _tracks: list[_TrackState] = field(default_factory=list)
     _next_id: int = 1
     _last_t_s: float = -math.inf
-    skipped_without_position: int = 0
+    #: Detections fed so far; of those, without a position (not placed) and below ``min_score``.
+    received: int = 0
+    unplaced: int = 0
+    below_threshold: int = 0
 
     def update(self, t_s: float, detections: Sequence[Detection]) -> tuple[Track, ...]:
         """Feed one frame of detections at simulation time ``t_s``; return the confirmed tracks.
+
+        Detections below ``min_score`` or without a position are counted (``below_threshold``,
+        ``unplaced``) and not tracked.
 
         Raises:
             ScoringError: ``t_s`` is earlier than the previous frame's.
@@ -81,8 +98,11 @@ class PositionTracker:
             msg = f"tracker fed out of order: {t_s:.3f} s after {self._last_t_s:.3f} s"
             raise ScoringError(msg)
         self._last_t_s = t_s
-        usable = [d for d in detections if all(math.isfinite(v) for v in d.position_m)]
-        self.skipped_without_position += len(detections) - len(usable)
+        self.received += len(detections)
+        scored = [d for d in detections if d.score >= self.config.min_score]
+        self.below_threshold += len(detections) - len(scored)
+        usable = [d for d in scored if d.placed]
+        self.unplaced += len(scored) - len(usable)
         matched: set[int] = set()
         for class_name in sorted({d.class_name for d in usable}):
             dets = [d for d in usable if d.class_name == class_name]

@@ -5,8 +5,10 @@ ROS interface:
 Subscribes:
     ``/uav/controller/state`` (uav_msgs/ControllerState), ``/uav/battery`` (sensor_msgs/BatteryState),
     ``/scenario/metrics`` (uav_msgs/RunMetrics: % mapped, collisions), ``/uav/sim_state`` (uav_msgs/SimState:
-    crashed), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the scenario's
-    ``search.detection_topic`` (uav_msgs/DetectionArray, frames of ``search.camera`` only).
+    crashed), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the geolocated
+    detections ``/geolocator/detections`` (uav_msgs/DetectionArray: the scenario's detector's boxes placed in
+    map; frames of ``perception.camera`` only; detections below ``perception.score_threshold`` or without a
+    position are counted, and the latter reported in ``/scenario/status`` ``detections_unplaced``).
 Publishes:
     ``/scenario/config`` (std_msgs/String, latched): the scenario file's text, for the bag and the report.
     ``/scenario/status`` (uav_msgs/ScenarioStatus) at 2 Hz and on every change.
@@ -18,6 +20,7 @@ Parameters:
     ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
+    ``~detector`` (str, ""): the detector the launch file started; must match ``perception.detector``;
     ``~pose_source`` (str, ""): likewise for ``pose_source``;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
     recorded topic that has a publisher and is connected to each of them (both ends' ``getBusInfo`` list the
@@ -50,7 +53,14 @@ from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioStatus, SimState
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest
-from uav_scenarios.core.config import MissionKind, Scenario, Strategy, load_scenario, recorded_topics
+from uav_scenarios.core.config import (
+    GEOLOCATED_TOPIC,
+    MissionKind,
+    Scenario,
+    Strategy,
+    load_scenario,
+    recorded_topics,
+)
 from uav_scenarios.core.mission import (
     ConfirmationGate,
     Phase,
@@ -82,6 +92,7 @@ class MissionManager:
         linger_s: float,
         max_linger_s: float = 30.0,
         person_instance_id: int = 0,
+        person_xy: tuple[float, float] | None = None,
         scripted: dict[str, Any] | None = None,
     ) -> None:
         self.scenario = scenario
@@ -93,7 +104,14 @@ class MissionManager:
         self.scorer_final = False
         search = scenario.search
         self.gate = (
-            ConfirmationGate(search.confirm_detections, search.confirm_window_s, instance_id=person_instance_id)
+            ConfirmationGate(
+                search.confirm_detections,
+                search.confirm_window_s,
+                instance_id=person_instance_id,
+                min_score=scenario.perception.score_threshold,
+                area=search.area_m,
+                verify_xy=person_xy if search.verify == "operator" else None,
+            )
             if scenario.mission is MissionKind.SEARCH_AND_RESCUE and search is not None
             else None
         )
@@ -132,7 +150,7 @@ class MissionManager:
         rospy.Subscriber("/uav/sim_state", SimState, self.on_sim_state, queue_size=10)
         rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=5)
         if self.gate is not None and self.scenario.search is not None:
-            rospy.Subscriber(self.scenario.search.detection_topic, DetectionArray, self.on_detections, queue_size=20)
+            rospy.Subscriber(GEOLOCATED_TOPIC, DetectionArray, self.on_detections, queue_size=20)
         rospy.Timer(rospy.Duration(0.5), self.on_tick)
 
     # ---- inputs ----------------------------------------------------------------------------
@@ -159,14 +177,32 @@ class MissionManager:
         if self.gate is None or self.scenario.search is None:
             return
         frame = detections_from_msg(msg)
-        if frame.camera != self.scenario.search.camera or self.found_at_s is not None or self.start_sim_s is None:
+        if frame.camera != self.scenario.perception.camera or self.found_at_s is not None or self.start_sim_s is None:
             return
+        unplaced = self.gate.unplaced
+        rejected = len(self.gate.rejections)
         found = self.gate.update(frame.t_s, frame.detections)
+        for candidate in self.gate.rejections[rejected:]:
+            rospy.logwarn(
+                f"mission_manager: candidate at {tuple(round(v, 1) for v in candidate.position_m)} after "
+                f"{candidate.detections} detections is not the person searched for (operator check); searching on"
+            )
+        if self.gate.unplaced > unplaced:
+            rospy.logwarn_throttle(
+                30.0,
+                f"mission_manager: {self.gate.unplaced} {self.gate.class_name} detections so far had no position "
+                "(the geolocator could not place them) and cannot confirm anyone",
+            )
         if found is None:
             return
         self.found_at_s = found.t_s
         self.person = found.position_m
-        rospy.loginfo(f"mission_manager: person confirmed at {found.position_m} after {found.detections} detections")
+        gate = self.gate
+        rospy.loginfo(
+            f"mission_manager: person confirmed at {found.position_m} after {found.detections} detections "
+            f"(not used: {gate.unplaced} unplaced, {gate.below_threshold} below the threshold, "
+            f"{gate.too_uncertain} too uncertain, {gate.outside_area} outside the search area)"
+        )
         if self.target_pub is not None:
             self.target_pub.publish(
                 PointStamped(header=Header(stamp=msg.header.stamp, frame_id="map"), point=Point(*found.position_m))
@@ -332,6 +368,8 @@ class MissionManager:
             "goal": self.goal,
             "target_found": self.person is not None,
             "target_position": self.person,
+            "detections_unplaced": self.gate.unplaced if self.gate is not None else 0,
+            "candidates_rejected": len(self.gate.rejections) if self.gate is not None else 0,
             "complete_time_s": self.found_at_s - self.start_sim_s if self.found_at_s is not None else math.nan,
             "stop": self.stop_reason is not None,
             "stop_reason": self.stop_reason.value if self.stop_reason else "",
@@ -339,8 +377,15 @@ class MissionManager:
         self.status_pub.publish(status_msg(rospy.Time.from_sec(now), fields))
 
 
-def launch_mismatch(scenario: Scenario, expect_mission: str, depth_source: str, pose_source: str = "") -> str:
+def launch_mismatch(
+    scenario: Scenario, expect_mission: str, depth_source: str, pose_source: str = "", detector: str = ""
+) -> str:
     """Why the launch file and the scenario disagree ("" when they agree)."""
+    if detector and detector != scenario.perception.detector.value:
+        return (
+            f"{scenario.source} says perception.detector: {scenario.perception.detector.value} but the launch started "
+            f"detector:={detector}; pass detector:={scenario.perception.detector.value} (uav-run does)"
+        )
     if expect_mission and expect_mission != scenario.mission.value:
         return (
             f"{scenario.source} is a {scenario.mission.value} scenario but this is {expect_mission}.launch; "
@@ -366,7 +411,7 @@ def main() -> None:
 def _run() -> None:
     params = node_params(MissionManagerParams, "mission_manager")
     scenario = load_scenario(Path(params.scenario))
-    problem = launch_mismatch(scenario, params.expect_mission, params.depth_source, params.pose_source)
+    problem = launch_mismatch(scenario, params.expect_mission, params.depth_source, params.pose_source, params.detector)
     if problem:
         raise ScenarioConfigError(problem)
     scripted = params.run.scripted
@@ -380,6 +425,7 @@ def _run() -> None:
         linger_s=params.linger_s,
         max_linger_s=params.max_linger_s,
         person_instance_id=int(params.run.person.get("instance_id", 0)),
+        person_xy=(float(person["x_m"]), float(person["y_m"])) if (person := params.run.person) else None,
         scripted=scripted,
     )
     node.wait_for_recorder = params.wait_for_recorder

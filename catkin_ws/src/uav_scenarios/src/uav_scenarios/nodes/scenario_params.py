@@ -32,13 +32,14 @@ from uav_scenarios.core.params import (
     bridge_cameras,
     needs_person,
     needs_terrain,
+    needs_terrain_model,
     node_params,
     scripted_request,
     sitl_capacity_mah,
 )
 from uav_scenarios.core.world import place_person
 from uav_scenarios.errors import ScenarioError
-from uav_scenarios.shell.world_store import DEFAULT_CACHE_DIR, derived_world_yaml, load_world
+from uav_scenarios.shell.world_store import DEFAULT_CACHE_DIR, derived_world_yaml, load_world, terrain_dem
 
 
 def run_context(
@@ -55,6 +56,10 @@ def run_context(
     if needs_terrain(scenario) and node == "mission_manager":
         world = world or load_world(scenario, cache_dir)
         scripted = scripted_request(scenario, world.height_at)
+    dem = ""
+    if needs_terrain_model(scenario) and node == "geolocator":
+        world = world or load_world(scenario, cache_dir)
+        dem = str(terrain_dem(world, cache_dir))
     world_yaml = ""
     if node == "sim_bridge":
         world_yaml = str(derived_world_yaml(scenario, (cache_dir or DEFAULT_CACHE_DIR).parent / "scenario_worlds"))
@@ -78,6 +83,7 @@ def run_context(
         battery_capacity_mah=capacity,
         lockstep_role=lockstep_role,
         scripted=scripted,
+        terrain_dem=dem,
     )
 
 

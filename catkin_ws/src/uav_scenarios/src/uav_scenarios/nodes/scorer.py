@@ -5,7 +5,8 @@ ROS interface:
 Subscribes:
     ``/uav/ground_truth/odom`` (nav_msgs/Odometry), ``/uav/battery`` (sensor_msgs/BatteryState),
     ``/map_server/layers`` (uav_msgs/GridLayers), ``/autonomy/features`` (uav_msgs/GridLayers),
-    ``/detections/ground_truth`` and the scenario's ``search.detection_topic`` (uav_msgs/DetectionArray),
+    ``/detections/ground_truth`` (the truth) and ``/geolocator/detections`` (the detector under test, its boxes
+    placed in map) (uav_msgs/DetectionArray),
     ``/scenario/tracks`` (uav_msgs/TrackArray), ``/sim/collision`` (uav_msgs/Collision),
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
     ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
@@ -13,12 +14,16 @@ Subscribes:
     with ``pose_source: autopilot``: ``/uav/autopilot/odom`` (nav_msgs/Odometry, the estimate the autonomy flew
     on: its error against the ground truth) and ``/autopilot_odometry/status`` (uav_msgs/EstimateStatus:
     its changes of state, e.g. STALE with the reason, are events);
-    camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times.
+    camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times, and the
+    detector camera's color images when the detector is not the ground truth (``scoring.gallery_size`` > 0:
+    the gallery of its worst mistakes is cut from them).
 Publishes:
     ``/scenario/metrics`` (uav_msgs/RunMetrics) at ``scoring.metrics_rate_hz`` (sim time) and once at the end;
     ``/scenario/snapshot/layers`` and ``/scenario/snapshot/features`` (uav_msgs/GridLayers, at most
     ``scoring.snapshot_max_cells`` per side) and ``/scenario/snapshot/<cam>/{color,depth,instance}``
-    (sensor_msgs/Image) at ``scoring.snapshot_times_s`` and at the end, for the report.
+    (sensor_msgs/Image) at ``scoring.snapshot_times_s`` and at the end, for the report;
+    ``/scenario/snapshot/gallery`` (sensor_msgs/Image rgb8, latched): the worst false positives and misses,
+    at the end (metadata in the metrics' ``detection.gallery``).
 Calls:
     ``/map_server/export_occupied`` (uav_msgs/ExportVoxels) every ``scoring.map_accuracy_period_s`` of
     simulation time and at the end: the map's occupied voxels against the world's surface voxels.
@@ -49,6 +54,7 @@ import os
 import tempfile
 import threading
 import time
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +64,12 @@ from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import BatteryState, Image
+from std_msgs.msg import Header
 
+from uav_common.config import ConfigError
+from uav_common.detection_classes import load_detection_classes
+from uav_common.paths import config_file
+from uav_common.ros.arrays import image_msg
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import (
@@ -78,12 +89,15 @@ from uav_msgs.msg import (
 from uav_msgs.srv import ExportVoxels
 from uav_scenarios.core.config import (
     ESTIMATE_STATUS_TOPIC,
+    GEOLOCATED_TOPIC,
+    DetectorKind,
     PoseSource,
     Scenario,
     effective_yaml,
     estimate_topic,
     load_scenario,
 )
+from uav_scenarios.core.scoring.gallery import crop_tile, mosaic
 from uav_scenarios.core.scoring.metrics import voxel_accuracy, voxel_keys_from_indices
 from uav_scenarios.core.scoring.run import RunScorer, swath_width_m
 from uav_scenarios.core.scoring.types import SceneTruth
@@ -99,8 +113,10 @@ from uav_scenarios.ros.records import (
     estimate_status_from_msg,
     goal_from_msg,
     grid_from_msg,
+    image_from_msg,
     object_states_from_msg,
     pose_from_odometry,
+    stamp_s,
     tracks_from_msg,
 )
 from uav_scenarios.shell.versions import run_versions
@@ -114,6 +130,8 @@ QUEUE = 2000
 HOLD_S = 0.5
 #: Tracking metrics (py-motmetrics, slow on long runs) are recomputed this often (simulation s).
 TRACKING_PERIOD_S = 20.0
+#: Detector-camera images kept for cutting the gallery's crops (frames are scored HOLD_S after their stamp).
+GALLERY_IMAGES = 40
 
 
 def default_truth(scenario: Scenario) -> SceneTruth:
@@ -147,20 +165,34 @@ class ScorerNode:
         self.cameras = cameras
         self.world_cache_dir = world_cache_dir
         self.map_server_ns = map_server_ns.rstrip("/")
-        search = scenario.search
-        self.detection_topic = search.detection_topic if search else "/detections/ground_truth"
+        perception = scenario.perception
+        self.detection_camera = perception.camera
+        try:
+            classes = load_detection_classes(config_file("detection_classes.yaml")).names
+        except ConfigError as err:
+            raise ScenarioConfigError(str(err)) from err
         self.scorer = RunScorer(
             spec=scenario.scoring,
             truth=default_truth(scenario),
-            detection_source="ground_truth" if self.detection_topic == "/detections/ground_truth" else "detector",
+            detection_source=perception.source,
             person_id=int(person.get("instance_id", 0)),
-            tracked_camera=search.camera if search else "forward",
+            tracked_camera=perception.camera,
             cruise_speed_mps=scenario.autonomy.cruise_speed_mps,
             swath_m_per_m=swath_width_m(1.0, map_camera_hfov_deg),
             footprint_aspect=map_camera_aspect,
             camera_pitch_deg=dict(camera_pitch_deg) or {"nadir": 90.0, "forward": 25.0},
             spec_resolution_m=scenario.map.resolution_m,
+            score_threshold=perception.score_threshold,
+            classes=classes,
         )
+        # The ground truth scored against itself has no mistakes to show: no gallery, no extra render.
+        self.gallery_images: OrderedDict[int, Any] | None = (
+            OrderedDict()
+            if scenario.scoring.gallery_size > 0 and perception.detector is not DetectorKind.GROUND_TRUTH
+            else None
+        )
+        self.gallery_tiles: dict[int, Any] = {}
+        self.gallery_missing = 0
         self.person = person
         self.lock = threading.Lock()
         self.start_s: float | None = None
@@ -214,8 +246,16 @@ class ScorerNode:
         sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)
         sub("/autonomy/features", numpy_msg(GridLayers), self.on_features, queue_size=2, buff_size=2**26)
         sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=QUEUE)
-        if self.detection_topic != "/detections/ground_truth":
-            sub(self.detection_topic, DetectionArray, self.on_detector, queue_size=QUEUE)
+        sub(GEOLOCATED_TOPIC, DetectionArray, self.on_detector, queue_size=QUEUE)
+        self.pubs["gallery"] = rospy.Publisher("/scenario/snapshot/gallery", Image, queue_size=1, latch=True)
+        if self.gallery_images is not None:
+            sub(
+                f"/cameras/{self.detection_camera}/color/image_raw",
+                Image,
+                self.on_detector_image,
+                queue_size=5,
+                buff_size=2**24,
+            )
         sub("/scenario/tracks", TrackArray, self._feed(tracks_from_msg, "add_tracks"), queue_size=QUEUE)
         sub("/sim/collision", Collision, self._feed(collision_from_msg, "add_collision"), queue_size=QUEUE)
         sub(
@@ -309,6 +349,7 @@ class ScorerNode:
                         getattr(self.scorer, method)(record)
                 except ScenarioError as err:
                     rospy.logwarn_throttle(10.0, f"scorer: record at {t_s:.2f} s rejected: {err}")
+            self._cut_gallery()
 
     # ---- callbacks -----------------------------------------------------------------------
 
@@ -328,6 +369,44 @@ class ScorerNode:
     def on_detector(self, msg: DetectionArray) -> None:
         frame = detections_from_msg(msg)
         self._push(frame.t_s, "detector", frame)
+
+    def on_detector_image(self, msg: Image) -> None:
+        """Keep the detector camera's latest images, to cut the gallery's crops from once frames are scored."""
+        if self.gallery_images is None:
+            return
+        key = round(stamp_s(msg.header.stamp) * 1e4)
+        with self._pending_lock:
+            self.gallery_images[key] = msg
+            while len(self.gallery_images) > GALLERY_IMAGES:
+                self.gallery_images.popitem(last=False)
+
+    def _cut_gallery(self) -> None:
+        """Crops of the gallery items scored since the last call (from the kept images)."""
+        items = self.scorer.take_gallery_items()
+        if not items or self.gallery_images is None:
+            return
+        for item in items:
+            with self._pending_lock:
+                msg = self.gallery_images.get(round(item.t_s * 1e4))
+            if msg is None:
+                self.gallery_missing += 1
+                continue
+            try:
+                self.gallery_tiles[item.key] = crop_tile(image_from_msg(msg), item)
+            except ScenarioError as err:
+                rospy.logwarn_throttle(30.0, f"scorer: no gallery crop: {err}")
+
+    def _publish_gallery(self) -> None:
+        """The gallery's mosaic (worst false positives, then worst misses), once, at the end."""
+        with self.lock:
+            kept = [i for i in self.scorer.gallery_items() if i.key in self.gallery_tiles]
+        tiles: dict[str, list[Any]] = {}
+        for item in kept:
+            tiles.setdefault(item.kind, []).append(self.gallery_tiles[item.key])
+        image = mosaic(tiles, self.scenario.scoring.gallery_size)
+        if image is not None:
+            stamp = rospy.Time.from_sec(self.end_s if self.end_s is not None else rospy.get_time())
+            self.pubs["gallery"].publish(image_msg(image, "rgb8", Header(stamp=stamp, frame_id="gallery")))
 
     def on_insert_stats(self, msg: MapInsertStats) -> None:
         """Totals since the map server started: how many clouds reached the map (dropped ones cost coverage)."""
@@ -357,6 +436,10 @@ class ScorerNode:
             if self.start_s is None:
                 self.start_s = t - msg.sim_time_s
                 self.scorer.start_t_s = self.start_s  # the run starts with the mission, not the first record
+            self.scorer.set_candidates_rejected(t, int(getattr(msg, "candidates_rejected", 0)))
+            if msg.target_found:
+                p = msg.target_position
+                self.scorer.mark_confirmed(t, (p.x, p.y, p.z))
             if math.isfinite(msg.complete_time_s):
                 self.scorer.mark_complete(
                     self.start_s + msg.complete_time_s, "person confirmed" if msg.target_found else "mission complete"
@@ -446,7 +529,9 @@ class ScorerNode:
     def _summary(self, now: float, *, tracking: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
         with self.lock:
             row = self.scorer.sample(now)
-            summary = self.scorer.summary(now, tracking=tracking)
+            summary = self.scorer.summary(now, tracking=tracking, coco=self._final)
+        if self.gallery_missing:
+            summary["detection"]["gallery_crops_missing"] = self.gallery_missing
         summary["scenario"] = self.scenario.name
         summary["stop_reason"] = next(
             (e["what"][6:] for e in reversed(summary["events"]) if e["what"].startswith("stop: ")), ""
@@ -537,6 +622,7 @@ class ScorerNode:
                 self._publish_grids()
                 self._final = True
                 self._emit(now)
+                self._publish_gallery()
             self.finished = True
 
 

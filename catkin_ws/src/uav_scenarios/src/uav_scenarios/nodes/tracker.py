@@ -3,8 +3,10 @@
 ROS interface:
 
 Subscribes:
-    ``~detections`` (uav_msgs/DetectionArray, default ``/detections/ground_truth``): only
-    frames from ``~camera`` are tracked; detections need ``position`` (map ENU).
+    ``~detections`` (uav_msgs/DetectionArray, default ``/geolocator/detections``: any detector's boxes
+    placed in map by the geolocator): only frames from ``~camera`` are tracked; a detection needs a
+    ``position`` (map ENU) and a score of at least ``~min_score``; the others are counted and reported
+    in every TrackArray (``detections_unplaced``, ``detections_below_threshold``).
     ``/scenario/status`` (uav_msgs/ScenarioStatus): the tracker starts afresh when the run starts and
     ignores frames from before (so a live run and its replay track the same frames); frames that
     arrive before the first status are held and tracked once it comes, if they belong to the run.
@@ -13,7 +15,8 @@ Publishes:
     with the frame's stamp (so the scorer pairs them with the ground truth of that image).
 Parameters:
     ``~camera`` (str, default ``forward``); ``~gate_m`` (float, 5.0); ``~min_hits`` (int, 2);
-    ``~max_coast_s`` (float, 3.0); ``~detections`` (str). Any other private parameter stops the node (exit code 2).
+    ``~max_coast_s`` (float, 3.0); ``~min_score`` (float, 0.0: the operating threshold); ``~detections`` (str).
+    Any other private parameter stops the node (exit code 2).
 
 The tracker never reads ground-truth ids: identities are its own (core: ``tracking.PositionTracker``).
 """
@@ -83,7 +86,21 @@ class TrackerNode:
             rospy.logwarn_throttle(5.0, f"tracker reset: {err}")
             self.tracker = PositionTracker(self.tracker.config)
             tracks = self.tracker.update(frame.t_s, frame.detections)
-        self.pub.publish(tracks_msg(msg.header.stamp, frame.camera, tracks))
+        tr = self.tracker
+        self.pub.publish(
+            tracks_msg(
+                msg.header.stamp,
+                frame.camera,
+                tracks,
+                received=tr.received,
+                unplaced=tr.unplaced,
+                below_threshold=tr.below_threshold,
+            )
+        )
+        if tr.unplaced and frame.detections and not all(d.placed for d in frame.detections):
+            rospy.logwarn_throttle(
+                30.0, f"tracker: {tr.unplaced} of {tr.received} detections so far had no position and were not tracked"
+            )
 
 
 def main() -> None:
@@ -93,7 +110,9 @@ def main() -> None:
 def _run() -> None:
     params = node_params(TrackerParams, "tracker")
     try:
-        config = TrackerConfig(gate_m=params.gate_m, min_hits=params.min_hits, max_coast_s=params.max_coast_s)
+        config = TrackerConfig(
+            gate_m=params.gate_m, min_hits=params.min_hits, max_coast_s=params.max_coast_s, min_score=params.min_score
+        )
     except ValueError as err:
         msg = f"tracker: bad parameter: {err}"
         raise ScenarioConfigError(msg) from err

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from uav_scenarios.core.config import GEOLOCATED_TOPIC
 from uav_scenarios.core.scoring.types import DetectionFrame, GoalSample, GridSnapshot
 from uav_scenarios.errors import BagReadError, ScoringError
 from uav_scenarios.ros.records import (
@@ -88,6 +89,8 @@ class RunData:
     layers: list[GridSnapshot] = field(default_factory=list)
     features: list[GridSnapshot] = field(default_factory=list)
     images: list[CameraImage] = field(default_factory=list)
+    #: The scorer's gallery of the detector's worst false positives and misses (RGB mosaic), if any.
+    gallery: npt.NDArray[Any] | None = None
     target_position_m: tuple[float, float] | None = None
     #: Moving people and vehicles: name -> ``[(t, x, y), ...]`` (``/sim/object_states``).
     object_tracks: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
@@ -202,10 +205,12 @@ def read_run_bag(path: Path, *, snapshot_topics: bool = True) -> RunData:  # noq
             "/autonomy/goal_reason": lambda m, _c: run.goals.append(goal_from_msg(m)),
             "/detections/ground_truth": lambda m, _c: run.detections.append(detections_from_msg(m)),
             "/sim/object_states": on_objects,
+            GEOLOCATED_TOPIC: lambda m, _c: run.detections.append(detections_from_msg(m)),
         }
         if detection_topic and detection_topic not in wanted:
             wanted[detection_topic] = lambda m, _c: run.detections.append(detections_from_msg(m))
         if snapshot_topics:
+            wanted["/scenario/snapshot/gallery"] = lambda m, _c: setattr(run, "gallery", image_from_msg(m))
             wanted["/scenario/snapshot/layers"] = lambda m, _c: run.layers.append(grid_from_msg(m))
             wanted["/scenario/snapshot/features"] = lambda m, _c: run.features.append(grid_from_msg(m))
         conns = [c for c in reader.connections if c.topic in wanted or _is_image_snapshot(c.topic, snapshot_topics)]
@@ -249,7 +254,8 @@ def _detection_topic(scenario_yaml: str) -> str:
     except yaml.YAMLError:
         return ""
     search = data.get("search") if isinstance(data, dict) else None
-    return str(search.get("detection_topic", "")) if isinstance(search, dict) else ""
+    # Bags from before the detector contract: the detector's uav_msgs/DetectionArray topic was search.detection_topic.
+    return str(search.get("detection_topic") or "") if isinstance(search, dict) else ""
 
 
 def _finish(

@@ -28,7 +28,9 @@ __all__ = [
     "battery_altitude_figure",
     "camera_figure",
     "detection_figure",
+    "gallery_figure",
     "map_snapshots_figure",
+    "pr_curves_figure",
     "snapshot_columns",
     "topdown_figure",
     "voxel_figure",
@@ -339,6 +341,95 @@ def moving_objects_figure(run: RunData, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+_CONTEXT_TITLES = {
+    "pixel_size": "pixel size (TinyPerson bins)",
+    "range": "range",
+    "view_angle": "view angle (off nadir)",
+    "visible_fraction": "visible fraction (occlusion)",
+    "altitude": "altitude above ground",
+    "clutter": "clutter (objects in frame)",
+}
+
+
+def pr_curves_figure(run: RunData, path: Path) -> Path | None:
+    """Precision-recall curves (IoU 0.5, mean over classes) of the detector: overall and per class, then one
+    panel per context with a curve per band (AP50 and the number of truth objects in the legend)."""
+    coco = (run.summary.get("detection") or {}).get("coco") or {}
+    if not coco.get("pr_curve") and not coco.get("by_context"):
+        return None
+    recall = np.linspace(0.0, 1.0, 101)
+    contexts = [c for c in _CONTEXT_TITLES if c in (coco.get("by_context") or {})]
+    panels = 1 + len(contexts)
+    cols = min(3, panels)
+    rows = (panels + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.6 * rows), squeeze=False, layout="constrained")
+
+    def curve(ax: Any, values: list[Any], label: str, **kw: Any) -> None:
+        if values and len(values) == recall.size:
+            prec = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+            # COCO gives precision 0 beyond the highest recall reached: end the line there instead.
+            reached = np.flatnonzero(prec > 0)
+            prec[reached[-1] + 1 if reached.size else 0 :] = np.nan
+            ax.plot(recall, prec, label=label, lw=1.3, **kw)
+
+    def ap(v: Any) -> str:
+        return "n/a" if v is None or (isinstance(v, float) and np.isnan(v)) else f"{v:.2f}"
+
+    ax0 = axes[0][0]
+    curve(ax0, coco.get("pr_curve") or [], f"all: AP50 {ap(coco.get('AP50'))}, AP {ap(coco.get('AP'))}", color="k")
+    for name, per in (coco.get("per_class") or {}).items():
+        curve(ax0, per.get("pr_curve") or [], f"{name}: AP50 {ap(per.get('AP50'))} (n={per.get('truths', 0)})", ls="--")
+    ax0.set_title(f"{(run.summary.get('detection') or {}).get('source', 'detector')}: overall", fontsize=10)
+    for k, name in enumerate(contexts, start=1):
+        ax = axes[k // cols][k % cols]
+        for label, band in coco["by_context"][name].items():
+            n = band.get("truths", 0)
+            if band.get("pr_curve"):
+                curve(ax, band["pr_curve"], f"{label}: AP50 {ap(band.get('AP50'))} (n={n})")
+            else:
+                ax.plot([], [], " ", label=f"{label}: no AP (n={n}, {band.get('detections', 0)} det.)")
+        ax.set_title(f"by {_CONTEXT_TITLES[name]}", fontsize=10)
+    for k in range(panels, rows * cols):
+        axes[k // cols][k % cols].axis("off")
+    for k in range(panels):
+        ax = axes[k // cols][k % cols]
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel("recall")
+        ax.set_ylabel("precision (IoU 0.5)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6.5, loc="lower left")
+    return _save(fig, path)
+
+
+def gallery_figure(run: RunData, path: Path) -> Path | None:
+    """The detector's worst false positives (top row, highest score first) and worst misses (largest and least
+    occluded first), cut from the camera images with the box drawn."""
+    det = run.summary.get("detection") or {}
+    if run.gallery is None:
+        frames = int(det.get("frames") or 0)
+        if not frames or "gallery" not in det:
+            return None  # no detector frame was scored
+        items = det.get("gallery") or []
+        fig, ax = plt.subplots(figsize=(8, 1.2), layout="constrained")
+        ax.set_axis_off()
+        text = (
+            f"no false positive and no miss at the operating threshold in {frames} scored frames"
+            if not items
+            else f"{len(items)} mistakes kept, but no image crops (the detector camera's images were not kept)"
+        )
+        ax.text(0.5, 0.5, f"{det.get('source', 'detector')}: {text}", ha="center", va="center", fontsize=10)
+        return _save(fig, path)
+    img = np.asarray(run.gallery)
+    fig, ax = plt.subplots(figsize=(min(14.0, img.shape[1] / 60.0), img.shape[0] / 60.0 + 0.6), layout="constrained")
+    ax.imshow(img, interpolation="nearest")
+    ax.set_axis_off()
+    ax.set_title(
+        "worst false positives (red, score) and misses (blue); range from the geolocation or the truth", fontsize=9
+    )
+    return _save(fig, path)
+
+
 #: Figure id -> (title, drawing function), in report order.
 FIGURES = {
     "cameras": ("Camera snapshots: color, depth, segmentation", camera_figure),
@@ -348,4 +439,6 @@ FIGURES = {
     "battery_altitude": ("Battery and altitude over time", battery_altitude_figure),
     "detections": ("Detection timeline", detection_figure),
     "moving_objects": ("Moving people and vehicles, and the map's clearing of what they left", moving_objects_figure),
+    "pr_curves": ("Detector precision-recall curves, overall and by context (COCO, IoU 0.5)", pr_curves_figure),
+    "gallery": ("Detector gallery: worst false positives and misses", gallery_figure),
 }

@@ -28,7 +28,14 @@ _HEADLINES = (
     ("flight.agl_min_m", "min altitude above ground (m)"),
     ("collisions.count", "collisions"),
     ("detection.person_first_detected.t_s", "person first detected (s)"),
+    ("detection.coco.AP50", "detector AP50"),
+    ("detection.coco.AP", "detector AP (IoU .50:.95)"),
+    ("detection.precision", "precision at threshold"),
+    ("detection.recall", "recall at threshold"),
+    ("detection.geolocation.error.median_m", "geolocation median error (m)"),
     ("tracking.mota", "tracking MOTA"),
+    ("tracking.idf1", "tracking IDF1"),
+    ("tracking.hota", "tracking HOTA"),
     ("moving_objects.movers", "moving people and vehicles"),
     ("moving_objects.cleared_fraction", "their trail voxels the map cleared (fraction)"),
 )
@@ -94,6 +101,43 @@ def _img_tag(path: Path, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
+def _context_table(summary: Mapping[str, Any]) -> str:
+    """One row per context band: COCO AP/AP50/AR and counts, precision/recall at the operating threshold,
+    MOTA/IDF1/HOTA. Every band is listed, those without truth objects too."""
+    det = summary.get("detection") or {}
+    coco = (det.get("coco") or {}).get("by_context") or {}
+    counts = det.get("by_context") or {}
+    tracking = (summary.get("tracking") or {}).get("by_context") or {}
+    names = [
+        n
+        for n in ("pixel_size", "range", "view_angle", "visible_fraction", "altitude", "clutter")
+        if n in coco or n in counts
+    ]
+    if not names:
+        return ""
+    head = (
+        "<tr><th>context</th><th>band</th><th>truths</th><th>detections</th><th>AP</th><th>AP50</th><th>AR</th>"
+        "<th>precision</th><th>recall</th><th>MOTA</th><th>IDF1</th><th>HOTA</th></tr>"
+    )
+    rows = []
+    for name in names:
+        bands = list(dict.fromkeys([*(coco.get(name) or {}), *(counts.get(name) or {}), *(tracking.get(name) or {})]))
+        for band in bands:
+            c = (coco.get(name) or {}).get(band) or {}
+            k = (counts.get(name) or {}).get(band) or {}
+            tr = (tracking.get(name) or {}).get(band) or {}
+            cells = [c.get("truths"), c.get("detections"), c.get("AP"), c.get("AP50"), c.get("AR")]
+            cells += [k.get("precision"), k.get("recall"), tr.get("mota"), tr.get("idf1"), tr.get("hota")]
+            tds = "".join(f"<td class=v>{_fmt(v)}</td>" for v in cells)
+            rows.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(band)}</td>{tds}</tr>")
+    note = (
+        '<p class="missing">AP, AP50, AR: COCO (pycocotools) over every score; precision and recall at the operating '
+        "threshold; a band without truth objects has no AP; false positives without a value of the context "
+        "(no visible fraction, unplaced) count in every band of it.</p>"
+    )
+    return f"<table>{head}{''.join(rows)}</table>{note}"
+
+
 def build_report(run: RunData, out_dir: Path, *, versions: Mapping[str, str] | None = None) -> Report:
     """Draw every figure into ``out_dir/figures`` and write ``out_dir/report.html``.
 
@@ -139,6 +183,9 @@ def build_report(run: RunData, out_dir: Path, *, versions: Mapping[str, str] | N
             else '<p class="missing">no data for this figure in the run</p>'
         )
         parts.append(f'<section id="{fig_id}"><h2>{html.escape(title)}</h2>{body}</section>')
+    context_table = _context_table(run.summary)
+    if context_table:
+        parts.append(f'<section id="by_context"><h2>Detector and tracker by context</h2>{context_table}</section>')
     rows = "".join(
         f"<tr><td>{html.escape(k)}</td><td class=v>{_fmt(v)}</td></tr>" for k, v in flatten_metrics(run.summary)
     )

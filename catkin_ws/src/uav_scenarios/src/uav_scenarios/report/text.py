@@ -49,9 +49,20 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
         ),
         f"  battery used {f('battery.used_mah', ' mAh', 0)} ({f('battery.used_pct', ' %')})",
         (
-            f"  detection TP/FP/FN {f('detection.tp', '', 0)}/{f('detection.fp', '', 0)}/{f('detection.fn', '', 0)}, "
+            f"  detection ({f('detection.source')}) TP/FP/FN {f('detection.tp', '', 0)}/{f('detection.fp', '', 0)}/"
+            f"{f('detection.fn', '', 0)} at score >= {f('detection.score_threshold', '', 2)}, "
+            f"AP50 {f('detection.coco.AP50', '', 3)}, AP {f('detection.coco.AP', '', 3)}; "
             f"person first detected {f('detection.person_first_detected.t_s', ' s')} at "
-            f"{f('detection.person_first_detected.range_m', ' m', 0)}, tracking MOTA {f('tracking.mota', '', 3)}"
+            f"{f('detection.person_first_detected.range_m', ' m', 0)}"
+        ),
+        (
+            f"  geolocation: median error {f('detection.geolocation.error.median_m', ' m', 2)}, "
+            f"{f('detection.geolocation.error.within_95', '', 2)} inside the stated 95 % ellipse; "
+            f"unplaced {f('detection.geolocation.unplaced_share', '', 3)} of the detections"
+        ),
+        (
+            f"  tracking MOTA {f('tracking.mota', '', 3)}, IDF1 {f('tracking.idf1', '', 3)}, "
+            f"HOTA {f('tracking.hota', '', 3)}"
         ),
         (
             f"  moving objects {f('moving_objects.movers', '', 0)}, {f('moving_objects.distance_m', ' m', 0)} "

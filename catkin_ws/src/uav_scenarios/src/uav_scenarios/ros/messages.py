@@ -58,10 +58,22 @@ def metrics_msg(stamp: rospy.Time, row: dict[str, Any], summary: dict[str, Any])
     return msg
 
 
-def tracks_msg(stamp: rospy.Time, camera: str, tracks: tuple[TrackRecord, ...]) -> TrackArray:
+def tracks_msg(
+    stamp: rospy.Time,
+    camera: str,
+    tracks: tuple[TrackRecord, ...],
+    *,
+    received: int = 0,
+    unplaced: int = 0,
+    below_threshold: int = 0,
+) -> TrackArray:
+    """A frame's confirmed tracks, with the tracker's running counts of what it was given and could not use."""
     return TrackArray(
         header=Header(stamp=stamp, frame_id="map"),
         camera=camera,
+        detections_received=received,
+        detections_unplaced=unplaced,
+        detections_below_threshold=below_threshold,
         tracks=[
             Track(
                 track_id=t.track_id,
@@ -88,6 +100,8 @@ def status_msg(stamp: rospy.Time, fields: dict[str, Any]) -> ScenarioStatus:
     msg.goal = _point(fields.get("goal"))
     msg.target_found = bool(fields.get("target_found", False))
     msg.target_position = _point(fields.get("target_position"))
+    msg.detections_unplaced = _u(fields.get("detections_unplaced", 0))
+    msg.candidates_rejected = _u(fields.get("candidates_rejected", 0))
     msg.stop = bool(fields.get("stop", False))
     return msg
 

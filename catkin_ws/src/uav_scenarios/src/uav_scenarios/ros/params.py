@@ -29,6 +29,7 @@ class MissionManagerParams:
     controller: str = "/waypoint_controller"
     expect_mission: str = ""
     depth_source: str = ""
+    detector: str = ""
     pose_source: str = ""
     wait_for_recorder: bool = False
     shutdown_on_stop: bool = True
@@ -78,7 +79,8 @@ class TrackerParams:
     """``tracker``'s private parameters."""
 
     camera: str = "forward"
-    detections: str = "/detections/ground_truth"
+    detections: str = "/geolocator/detections"
     gate_m: float = 5.0
     min_hits: int = 2
     max_coast_s: float = 3.0
+    min_score: float = 0.0

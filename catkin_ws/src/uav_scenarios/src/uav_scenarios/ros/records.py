@@ -112,7 +112,10 @@ def grid_from_msg(msg: Any) -> GridSnapshot:
 
 
 def detections_from_msg(msg: Any) -> DetectionFrame:
-    """``uav_msgs/DetectionArray`` -> detection frame."""
+    """``uav_msgs/DetectionArray`` -> detection frame (bags recorded before the covariance, position source
+    and discard counters existed read as unknown / none)."""
+    reasons = [str(r) for r in getattr(msg, "discarded_reasons", ())]
+    counts = [int(c) for c in getattr(msg, "discarded_counts", ())]
     return DetectionFrame(
         t_s=stamp_s(msg.header.stamp),
         camera=str(msg.camera),
@@ -126,9 +129,12 @@ def detections_from_msg(msg: Any) -> DetectionFrame:
                 range_m=float(d.range_m),
                 visible_fraction=float(d.visible_fraction),
                 position_m=_xyz(d.position),
+                position_cov_m2=tuple(float(c) for c in getattr(d, "position_covariance", ())),
+                position_source=str(getattr(d, "position_source", "")),
             )
             for d in msg.detections
         ),
+        discarded=tuple(zip(reasons, counts, strict=False)),
     )
 
 
@@ -141,6 +147,9 @@ def tracks_from_msg(msg: Any) -> TrackFrame:
             Track(int(t.track_id), str(t.class_name), _xyz(t.position), _xyz(t.velocity), int(t.hits))
             for t in msg.tracks
         ),
+        detections_received=int(getattr(msg, "detections_received", 0)),
+        detections_unplaced=int(getattr(msg, "detections_unplaced", 0)),
+        detections_below_threshold=int(getattr(msg, "detections_below_threshold", 0)),
     )
 
 

@@ -9,6 +9,7 @@ the world's hash; a missing, corrupt or read-only cache only costs time.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,9 @@ import yaml
 
 from uav_common.config import to_mapping
 from uav_common.voxel_keys import pack_keys, sorted_unique
+from uav_perception.core.detection.heightfield import HeightGrid
+from uav_perception.errors import PerceptionError
+from uav_perception.shell.dem import load_dem, save_dem
 from uav_scenarios.core.config import Scenario
 from uav_scenarios.core.scoring.types import SceneTruth
 from uav_scenarios.core.world import scene_truth_of, world_config_for
@@ -26,7 +30,15 @@ from uav_sim_bridge.core.world import World
 from uav_sim_bridge.errors import SimBridgeError
 from uav_sim_bridge.shell.world_store import cache_slot, load_or_generate
 
-__all__ = ["DEFAULT_CACHE_DIR", "derived_world_yaml", "load_world", "scene_truth", "surface_keys", "world_summary"]
+__all__ = [
+    "DEFAULT_CACHE_DIR",
+    "derived_world_yaml",
+    "load_world",
+    "scene_truth",
+    "surface_keys",
+    "terrain_dem",
+    "world_summary",
+]
 
 #: The bridge's default world cache (``config/sim_bridge.yaml`` ``world_cache_dir: null``).
 DEFAULT_CACHE_DIR = Path("~/.cache/uav_test_range/worlds").expanduser()
@@ -114,3 +126,33 @@ def world_summary(world: World, cache_dir: Path | None = None) -> dict[str, Any]
     """What a run records about its world (name, hash, seed, cache folder)."""
     slot = cache_slot(world.config, cache_dir or DEFAULT_CACHE_DIR)
     return {"name": world.config.name, "seed": world.config.seed, "hash": world.hash, "dir": str(slot)}
+
+
+def terrain_dem(world: World, cache_dir: Path | None = None, resolution_m: float = 2.0) -> Path:
+    """The world's terrain (no roofs, trees, people or vehicles) as a terrain model file for the geolocator,
+    sampled every ``resolution_m`` (the geolocator interpolates bilinearly between samples): the prior a
+    ground station would load from SRTM. Written once per world hash next to the world cache.
+
+    Raises:
+        WorldDataError: the file cannot be written and there is no valid one.
+    """
+    path = (cache_dir or DEFAULT_CACHE_DIR).parent / "terrain" / f"{world.hash[:20]}-{resolution_m:g}m.npz"
+    if path.is_file():
+        try:
+            load_dem(path)
+            return path
+        except PerceptionError:
+            pass  # rewrite it below
+    x0, y0, x1, y1 = world.terrain.bounds_m
+    cols = max(2, math.ceil((x1 - x0) / resolution_m))
+    rows = max(2, math.ceil((y1 - y0) / resolution_m))
+    xs = x0 + (np.arange(cols) + 0.5) * resolution_m
+    ys = y0 + (np.arange(rows) + 0.5) * resolution_m
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    heights = np.asarray(world.height_at(grid_x, grid_y), dtype=np.float64)
+    try:
+        save_dem(path, HeightGrid(heights, x0, y0, resolution_m, "bilinear", "terrain"))
+    except OSError as err:
+        msg = f"cannot write the terrain model {path}: {err}"
+        raise WorldDataError(msg) from err
+    return path

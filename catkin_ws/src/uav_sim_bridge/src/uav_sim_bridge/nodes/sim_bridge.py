@@ -17,7 +17,10 @@ Publishes:
     /cameras/<cam>/instance/image_raw (Image 16UC1, world instance id, 0 = sky)
     /cameras/<cam>/class/image_color (Image rgb8, class colors for people)
     /cameras/<cam>/points (sensor_msgs/PointCloud2 x y z rgb, frame camera_<cam>_optical, finite points)
-    /detections/ground_truth (uav_msgs/DetectionArray): people and vehicles per detection camera frame.
+    /detections/ground_truth (uav_msgs/DetectionArray): people and vehicles per detection camera frame, the
+        truth for scoring (instance ids, true centres, ranges, visible fractions).
+    /detections/<cam>/ground_truth (vision_msgs/Detection2DArray): the same boxes as a box-only detector
+        (class ids from config/detection_classes.yaml, score 1; no ids, no positions): the detector contract.
     /sim/collision (uav_msgs/Collision): the vehicle touched an object (also sent to the SITL).
     /sim/object_states (uav_msgs/ObjectStateArray): the moving (and moved) people and vehicles: pose, kind,
         box, velocity, at ``publish.object_states_rate_hz`` of simulation time (their ground-truth tracks).
@@ -66,9 +69,11 @@ from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import ColorRGBA
+from vision_msgs.msg import Detection2DArray
 from visualization_msgs.msg import Marker
 
-from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
+from uav_common.config import ConfigError, config_errors_as, deep_merge, load_yaml_mapping
+from uav_common.detection_classes import DetectionClasses, load_detection_classes
 from uav_common.geo import GeoPoint
 from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
@@ -79,7 +84,7 @@ from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import SimBridgeConfig, mounted_cameras, resolve_environment
+from uav_sim_bridge.config import SimBridgeConfig, bridge_config, resolve_environment
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
@@ -173,11 +178,27 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
             if isinstance(env.get("cameras"), dict):
                 env["cameras"] = {c: v for c, v in env["cameras"].items() if c in names or c == "default"}
                 data["environment"] = env
-        data["environment"] = resolve_environment(data.get("environment"))
         robot_path = Path(params.robot_description).expanduser() if params.robot_description else None
         robot = load_robot_description(robot_path or config_file("robot.yaml"))
-        data["cameras"] = mounted_cameras(data.get("cameras"), robot, source=str(path))
-        return from_mapping(SimBridgeConfig, data, source=f"{path} (+ ~params)")
+        return bridge_config(data, robot, source=f"{path} (+ ~params)")
+
+
+def _detection_classes(cfg: SimBridgeConfig) -> DetectionClasses:
+    """The class map of the ground truth's boxes; every detection class must be in it.
+
+    Raises:
+        SimBridgeConfigError: missing or bad class map, or a detection class it lacks.
+    """
+    path = cfg.detections.class_map or config_file("detection_classes.yaml")
+    try:
+        classes = load_detection_classes(Path(path).expanduser())
+    except ConfigError as err:
+        raise SimBridgeConfigError(str(err)) from err
+    missing = [c for c in cfg.detections.classes if c not in classes.classes]
+    if missing:
+        msg = f"detections.classes {missing} are not in the class map {path} (it has {sorted(classes.classes)})"
+        raise SimBridgeConfigError(msg)
+    return classes
 
 
 def _nested(keys: tuple[str, ...], value: Any) -> dict[str, Any]:
@@ -199,6 +220,10 @@ class _CameraPubs:
 
     def all(self) -> list[rospy.Publisher]:
         return [self.color, self.color_info, self.depth, self.depth_info, self.instance, self.klass, self.points]
+
+    def pixels(self) -> list[rospy.Publisher]:
+        """The topics that need the camera rendered (camera_info does not: it goes out with detections too)."""
+        return [self.color, self.depth, self.instance, self.klass, self.points]
 
 
 @dataclass
@@ -225,6 +250,7 @@ class SimBridgeNode:
             len(self.world.mesh.faces),
             time.monotonic() - t0,
         )
+        self.classes = _detection_classes(cfg)
         self.renderer = Renderer(self.world, cfg.render)
         rospy.loginfo("renderer: %s", self.renderer.gl_renderer)
         try:
@@ -300,6 +326,12 @@ class SimBridgeNode:
         self.pub_odom = rospy.Publisher("/uav/ground_truth/odom", Odometry, queue_size=10)
         self.pub_state = rospy.Publisher("/uav/sim_state", SimState, queue_size=10)
         self.pub_det = rospy.Publisher(self.cfg.detections.topic, DetectionArray, queue_size=10)
+        # The ground truth as one more box-only detector (vision_msgs), per detection camera.
+        self.pub_boxes = {
+            cam: rospy.Publisher(self.cfg.detections.boxes_topic.format(camera=cam), Detection2DArray, queue_size=10)
+            for cam in self.cfg.detections.cameras
+            if cam in self.engine.cameras
+        }
         self.pub_collision = rospy.Publisher("/sim/collision", Collision, queue_size=10, latch=True)
         self.pub_objects = rospy.Publisher("/sim/object_states", ObjectStateArray, queue_size=10)
         self.tf = tf2_ros.TransformBroadcaster()
@@ -551,7 +583,7 @@ class SimBridgeNode:
     def _wanted(self, name: str) -> bool:
         if not self.cfg.publish.only_when_subscribed:
             return True
-        return any(p.get_num_connections() > 0 for p in self.cam_pubs[name].all())
+        return any(p.get_num_connections() > 0 for p in self.cam_pubs[name].pixels())
 
     def _process(self, now: float) -> None:
         snap = self.tracker.snapshot
@@ -565,7 +597,11 @@ class SimBridgeNode:
         self._settle_wait("before /clock")
         self.pub_clock.publish(conv.clock(t))
         self._settle_wait("after /clock")
-        want_det = self.pub_det.get_num_connections() > 0 or not self.cfg.publish.only_when_subscribed
+        want_det = (
+            not self.cfg.publish.only_when_subscribed
+            or self.pub_det.get_num_connections() > 0
+            or any(p.get_num_connections() > 0 for p in self.pub_boxes.values())
+        )
         out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
         cfg = self.cfg
         if self.publish_pose_tf:
@@ -595,26 +631,31 @@ class SimBridgeNode:
 
     def _publish_camera(self, t: float, out: CameraOutput) -> None:
         hdr = conv.header(t, out.camera.optical_frame_id)
-        if out.detections is not None:
-            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
-        frame = out.frame
-        if frame is None or out.depth_m is None:
-            return  # only the detections were wanted
         pubs = self.cam_pubs[out.camera.name]
-        info = conv.camera_info(out.camera, hdr)
         every = not self.cfg.publish.only_when_subscribed
 
         def on(p: rospy.Publisher) -> bool:
             return every or p.get_num_connections() > 0
 
-        if on(pubs.color):
-            pubs.color.publish(image_msg(frame.color_rgb, "rgb8", hdr))
+        info = conv.camera_info(out.camera, hdr)
+        # Intrinsics go out with every frame of the camera, rendered or detection-only (a consumer of the
+        # detections, e.g. the geolocator, needs them; they cost no render), before the detections.
         if on(pubs.color_info):
             pubs.color_info.publish(info)
-        if on(pubs.depth):
-            pubs.depth.publish(image_msg(out.depth_m, "32FC1", hdr))
         if on(pubs.depth_info):
             pubs.depth_info.publish(info)
+        if out.detections is not None:
+            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
+            boxes = self.pub_boxes.get(out.camera.name)
+            if boxes is not None and on(boxes):
+                boxes.publish(conv.ground_truth_boxes(hdr, out.detections, self.classes))
+        frame = out.frame
+        if frame is None or out.depth_m is None:
+            return  # only the detections were wanted
+        if on(pubs.color):
+            pubs.color.publish(image_msg(frame.color_rgb, "rgb8", hdr))
+        if on(pubs.depth):
+            pubs.depth.publish(image_msg(out.depth_m, "32FC1", hdr))
         if on(pubs.instance):
             pubs.instance.publish(image_msg(frame.instance_id, "16UC1", hdr))
         if self.cfg.publish.class_image and on(pubs.klass):

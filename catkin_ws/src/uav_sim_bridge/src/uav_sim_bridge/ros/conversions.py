@@ -10,7 +10,9 @@ from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
+from vision_msgs.msg import BoundingBox2D, Detection2D, Detection2DArray, ObjectHypothesisWithPose
 
+from uav_common.detection_classes import DetectionClasses
 from uav_common.frames import wxyz_to_ros_xyzw
 from uav_msgs.msg import Collision, Detection, DetectionArray, ObjectStateArray, SimState
 from uav_msgs.msg import ObjectState as ObjectStateMsg
@@ -25,6 +27,7 @@ __all__ = [
     "clock",
     "collision_msg",
     "detection_array",
+    "ground_truth_boxes",
     "header",
     "object_states_msg",
     "odometry",
@@ -92,6 +95,7 @@ def camera_info(camera: CameraModel, hdr: Header) -> CameraInfo:
 
 
 def detection_array(hdr: Header, camera: str, dets: list[GroundTruthDetection]) -> DetectionArray:
+    """The truth, for scoring: instance ids, true centres (covariance zero), ranges, visible fractions."""
     out = DetectionArray(header=hdr, camera=camera, source="ground_truth")
     for d in dets:
         x, y, z = d.position_m
@@ -107,6 +111,8 @@ def detection_array(hdr: Header, camera: str, dets: list[GroundTruthDetection]) 
                 range_m=d.range_m,
                 visible_fraction=d.visible_fraction,
                 position=Point(x=x, y=y, z=z),
+                position_covariance=[0.0] * 9,
+                position_source="ground_truth",
             )
         )
     return out
@@ -135,6 +141,23 @@ def object_states_msg(t_s: float, frame_id: str, states: list[ObjectState]) -> O
                 moving=st.moving,
             )
         )
+    return out
+
+
+def ground_truth_boxes(hdr: Header, dets: list[GroundTruthDetection], classes: DetectionClasses) -> Detection2DArray:
+    """The same objects as a box-only detector (the detector contract): a box per object (centre and size
+    of its inclusive pixel box) and one hypothesis (class id from the class map, score 1, pose unset). No
+    instance id and no position: those are the truth's, on the truth topic."""
+    out = Detection2DArray(header=hdr)
+    for d in dets:
+        det = Detection2D(header=hdr)
+        det.bbox = BoundingBox2D()
+        det.bbox.center.x = 0.5 * (d.x_min + d.x_max)
+        det.bbox.center.y = 0.5 * (d.y_min + d.y_max)
+        det.bbox.size_x = float(d.x_max - d.x_min + 1)
+        det.bbox.size_y = float(d.y_max - d.y_min + 1)
+        det.results = [ObjectHypothesisWithPose(id=classes.id_of(d.object_class.label), score=1.0)]
+        out.detections.append(det)
     return out
 
 

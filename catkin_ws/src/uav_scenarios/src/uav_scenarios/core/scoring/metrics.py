@@ -420,11 +420,18 @@ def band_of(value: float, edges: Sequence[float]) -> int:
     return min(k, len(edges) - 2)
 
 
+#: A last band edge at or above this stands for "no upper limit" in labels (``">=32 px"``, not ``"32-10000 px"``).
+OPEN_EDGE = 1000.0
+
+
 def band_label(k: int, edges: Sequence[float], unit: str = "") -> str:
-    """Human label of band ``k``, e.g. ``"20-40 m"``; ``"unknown"`` for -1."""
+    """Human label of band ``k``, e.g. ``"20-40 m"``, or ``">=100 m"`` for an open last band; ``"unknown"`` for -1."""
     if k < 0:
         return "unknown"
-    return f"{edges[k]:g}-{edges[k + 1]:g}{' ' + unit if unit else ''}"
+    suffix = " " + unit if unit else ""
+    if k == len(edges) - 2 and edges[k + 1] >= OPEN_EDGE:
+        return f">={edges[k]:g}{suffix}"
+    return f"{edges[k]:g}-{edges[k + 1]:g}{suffix}"
 
 
 #: Layers reduced by their maximum when a snapshot is downsampled (heights, times, masks); others by their mean.

@@ -5,7 +5,14 @@ order by the live scorer node, a replay or the offline bag reader. At any time
 :meth:`RunScorer.sample` gives one time-series row and :meth:`RunScorer.summary`
 the nested metric dictionary written to ``metrics.json``. Every statistic with a
 natural context is also broken down by context: clutter (objects in view), view
-angle, range and altitude band.
+angle, range, altitude band, pixel size (TinyPerson's bins) and visible fraction.
+
+The detector under test is scored per image against the ground truth of the same camera and
+stamp: TP/FP/FN at the operating threshold (optimal IoU >= 0.5 matching), COCO AP/AP50/AR and
+precision-recall curves with pycocotools over every score (:mod:`.coco`), how well its boxes
+were placed on the ground (:mod:`.geolocation`) and its worst mistakes (:mod:`.gallery`). Its
+tracks (from the geolocated boxes) are scored with py-motmetrics (MOTA, IDF1) and HOTA
+(:mod:`.hota`).
 """
 
 from __future__ import annotations
@@ -18,6 +25,11 @@ from typing import Any
 import numpy as np
 
 from uav_scenarios.core.config import ScoringSpec
+from uav_scenarios.core.mission import CONFIRM_RADIUS_M
+from uav_scenarios.core.scoring.coco import CocoScores, ContextBands
+from uav_scenarios.core.scoring.gallery import Gallery, GalleryItem
+from uav_scenarios.core.scoring.geolocation import GeolocationScores
+from uav_scenarios.core.scoring.hota import HotaAccumulator, ground_similarity
 from uav_scenarios.core.scoring.metrics import (
     VoxelAccuracy,
     altitude_stats,
@@ -53,7 +65,16 @@ from uav_scenarios.errors import ScoringError
 __all__ = ["CONTEXTS", "DetectionCounts", "RunScorer", "swath_width_m"]
 
 #: Context dimensions of the breakdown and the unit of their bands.
-CONTEXTS = {"clutter": "objects", "view_angle": "deg", "range": "m", "altitude": "m"}
+CONTEXTS = {
+    "clutter": "objects",
+    "view_angle": "deg",
+    "range": "m",
+    "altitude": "m",
+    "pixel_size": "px",
+    "visible_fraction": "",
+}
+#: Contexts of an object (the others are of a frame).
+OBJECT_CONTEXTS = ("range", "view_angle", "pixel_size", "visible_fraction")
 _FRAME_KEY_DIGITS = 4  # stamps are matched to 0.1 ms
 #: Pose estimates are scored at most this often (simulation seconds).
 ESTIMATE_PERIOD_S = 0.1
@@ -128,6 +149,11 @@ class RunScorer:
     footprint_aspect: float = 0.75
     #: The map's voxel size (trail voxels use it until the truth's surface voxels are known).
     spec_resolution_m: float = 0.5
+    #: The detector's operating threshold: TP/FP/FN, tracking and the gallery use detections at or above it;
+    #: AP and the precision-recall curves use every detection.
+    score_threshold: float = 0.0
+    #: Classes scored by COCO (the class map's).
+    classes: tuple[str, ...] = ("person", "vehicle")
     _poses: list[PoseSample] = field(default_factory=list)
     #: The pose estimate the autonomy flew on (``pose_source: autopilot``), against ``_poses`` (the truth).
     _estimates: list[PoseSample] = field(default_factory=list)
@@ -156,12 +182,21 @@ class RunScorer:
     _first_detection_any: _FirstDetection | None = None
     _mot: MotScorer | None = None
     _mot_by_context: dict[str, dict[int, MotScorer]] = field(default_factory=dict)
+    _hota: HotaAccumulator = field(default_factory=HotaAccumulator)
+    _hota_by_context: dict[str, dict[int, HotaAccumulator]] = field(default_factory=dict)
+    _track_inputs: dict[str, int] = field(default_factory=dict)
+    _coco: CocoScores | None = None
+    _coco_cache: dict[str, Any] | None = None
+    _geo: GeolocationScores = field(default_factory=GeolocationScores)
+    _gallery: Gallery | None = None
     _events: list[tuple[float, str]] = field(default_factory=list)
     _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
     _tracking_cache: dict[str, Any] | None = None
     _takeoff_t_s: float | None = None
     _complete_t_s: float = math.nan
     _complete_what: str = ""
+    _confirmed: tuple[float, tuple[float, float, float]] | None = None
+    _candidates_rejected: int = 0
     _last_t_s: float = -math.inf
     #: Voxels moving objects left behind and what the map did with them (None until object states arrive).
     _trails: TrailTracker | None = None
@@ -287,6 +322,43 @@ class RunScorer:
             self._complete_what = what
             self._events.append((t_s, f"complete: {what}"))
 
+    def mark_confirmed(self, t_s: float, position_m: tuple[float, float, float]) -> None:
+        """The mission confirmed a person at ``position_m``; the first call wins."""
+        self._advance(t_s)
+        if self._confirmed is None and all(math.isfinite(v) for v in position_m):
+            self._confirmed = (t_s, position_m)
+
+    def set_candidates_rejected(self, t_s: float, count: int) -> None:
+        """The mission's running count of candidates its operator check turned down (bystanders)."""
+        if count > self._candidates_rejected:
+            self._advance(t_s)
+            self._events.append((t_s, f"candidate turned down (not the person searched for), {count} so far"))
+            self._candidates_rejected = count
+
+    def _search_summary(self) -> dict[str, Any]:
+        """Whether the person confirmed is the person of interest: within ``CONFIRM_RADIUS_M`` of them (a box-only
+        detector cannot tell people apart; confirming a bystander is a failed search)."""
+        if not self.person_id:
+            return {}
+        rows = self.truth.objects
+        match = rows[rows[:, 0] == self.person_id] if rows.size else rows
+        person = tuple(float(v) for v in match[0, 1:4]) if len(match) else (math.nan, math.nan, math.nan)
+        out: dict[str, Any] = {
+            "person_position_m": list(person),
+            "confirmed": self._confirmed is not None,
+            "candidates_rejected": self._candidates_rejected,
+        }
+        if self._confirmed is not None:
+            t_s, pos = self._confirmed
+            err = math.hypot(pos[0] - person[0], pos[1] - person[1])
+            out.update(
+                confirmed_t_s=t_s - self.start_t_s,
+                confirmed_position_m=list(pos),
+                error_m=err,
+                correct=bool(err <= CONFIRM_RADIUS_M) if math.isfinite(err) else None,
+            )
+        return out
+
     def add_detections(self, frame: DetectionFrame, *, is_truth: bool) -> None:
         """A frame of ground-truth detections, of the detector under test, or both.
 
@@ -358,35 +430,39 @@ class RunScorer:
             for k in [k for k in pending if k[1] < horizon]:
                 del pending[k]
 
-    def _frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+    def _frame_values(self, truth: DetectionFrame) -> dict[str, float]:
         _, agl = self._pose_at(truth.t_s)
-        spec = self.spec
-        return {
-            "clutter": band_of(float(len(truth.detections)), spec.clutter_bands),
-            "altitude": band_of(agl, spec.altitude_bands_m),
-        }
+        return {"clutter": float(len(truth.detections)), "altitude": agl}
 
-    def _object_context(self, det: Detection, frame_ctx: dict[str, int], camera_m: tuple[float, ...]) -> dict[str, int]:
-        spec = self.spec
+    def _frame_context(self, truth: DetectionFrame) -> dict[str, int]:
+        return {name: band_of(v, self._bands(name)[0]) for name, v in self._frame_values(truth).items()}
+
+    @staticmethod
+    def _object_values(det: Detection, camera_m: tuple[float, ...]) -> dict[str, float]:
+        """An object's context values (NaN where unknown: a detection's visible fraction, an unplaced one's range)."""
         angle = math.nan
         if len(camera_m) == 3:
             angle = view_angle_deg((camera_m[0], camera_m[1], camera_m[2]), det.position_m)
         return {
-            **frame_ctx,
-            "range": band_of(det.range_m, spec.range_bands_m),
-            "view_angle": band_of(angle, spec.view_angle_bands_deg),
+            "range": det.range_m,
+            "view_angle": angle,
+            "pixel_size": det.size_px,
+            "visible_fraction": det.visible_fraction,
         }
 
+    def _object_context(self, det: Detection, frame_ctx: dict[str, int], camera_m: tuple[float, ...]) -> dict[str, int]:
+        values = self._object_values(det, camera_m)
+        return {**frame_ctx, **{name: band_of(v, self._bands(name)[0]) for name, v in values.items()}}
+
     def _track_frame_context(self, truth: DetectionFrame) -> dict[str, int]:
-        """A tracking frame's context: clutter and altitude, plus the median range and view angle of its objects."""
+        """A tracking frame's context: clutter and altitude, plus the median of each object context over its objects."""
         ctx = self._frame_context(truth)
         pose, _ = self._pose_at(truth.t_s)
-        ranges = [d.range_m for d in truth.detections if math.isfinite(d.range_m)]
-        angles = [view_angle_deg(pose.position_m, d.position_m) for d in truth.detections] if pose is not None else []
-        angles = [a for a in angles if math.isfinite(a)]
-        spec = self.spec
-        ctx["range"] = band_of(float(np.median(ranges)) if ranges else math.nan, spec.range_bands_m)
-        ctx["view_angle"] = band_of(float(np.median(angles)) if angles else math.nan, spec.view_angle_bands_deg)
+        camera_m: tuple[float, ...] = pose.position_m if pose is not None else ()
+        values = [self._object_values(d, camera_m) for d in truth.detections]
+        for name in OBJECT_CONTEXTS:
+            finite = [v[name] for v in values if math.isfinite(v[name])]
+            ctx[name] = band_of(float(np.median(finite)) if finite else math.nan, self._bands(name)[0])
         return ctx
 
     def _count(self, ctx: dict[str, int], kind: str) -> None:
@@ -397,37 +473,80 @@ class RunScorer:
 
     def _score_detection_frame(self, truth: DetectionFrame, hyp: DetectionFrame) -> None:
         self._det_frames += 1
+        self._coco_cache = None
         pose, _ = self._pose_at(truth.t_s)
         camera_m: tuple[float, ...] = pose.position_m if pose is not None else ()
         frame_ctx = self._frame_context(truth)
-        matches, missed, false = match_detections(truth.detections, hyp.detections)
+        if hyp is not truth:
+            self._geo.add_frame(hyp)
+        if self._coco is None:
+            self._coco = CocoScores(
+                self.classes,
+                {n: ContextBands(*self._bands(n)) for n in OBJECT_CONTEXTS},
+                {n: ContextBands(*self._bands(n)) for n in CONTEXTS if n not in OBJECT_CONTEXTS},
+            )
+        self._coco.add_image(
+            truth.detections,
+            [self._object_values(d, camera_m) for d in truth.detections],
+            hyp.detections,
+            [self._object_values(d, camera_m) for d in hyp.detections],
+            self._frame_values(truth),
+        )
+        if self._gallery is None:
+            self._gallery = Gallery(self.spec.gallery_size)
+        operating = [d for d in hyp.detections if d.score >= self.score_threshold]
+        matches, missed, false = match_detections(truth.detections, operating)
+        range_edges, range_unit = self._bands("range")
         for i, j in matches:
             t_det = truth.detections[i]
             self._count(self._object_context(t_det, frame_ctx, camera_m), "tp")
+            band = band_label(band_of(t_det.range_m, range_edges), range_edges, range_unit)
+            self._geo.add_match(t_det, operating[j], band)
             if self._first_detection_any is None:
                 self._first_detection_any = _FirstDetection(truth.t_s, t_det.range_m)
             if self.person_id and t_det.instance_id == self.person_id and self._first_person_detected is None:
-                self._first_person_detected = _FirstDetection(truth.t_s, hyp.detections[j].range_m)
+                self._first_person_detected = _FirstDetection(truth.t_s, operating[j].range_m)
                 self._events.append((truth.t_s, f"person detected at {t_det.range_m:.0f} m"))
         for i in missed:
             self._count(self._object_context(truth.detections[i], frame_ctx, camera_m), "fn")
+            self._gallery.miss(truth.t_s, truth.camera, truth.detections[i])
         for j in false:
-            self._count(self._object_context(hyp.detections[j], frame_ctx, camera_m), "fp")
+            self._count(self._object_context(operating[j], frame_ctx, camera_m), "fp")
+            self._gallery.false_positive(truth.t_s, truth.camera, operating[j])
 
     def _score_track_frame(self, truth: DetectionFrame, tracks: TrackFrame) -> None:
         if self._mot is None:
             self._mot = MotScorer(self.spec.track_gate_m)
-        finite = [d for d in truth.detections if all(math.isfinite(v) for v in d.position_m)]
+        self._track_inputs = {
+            "detections_received": tracks.detections_received,
+            "detections_unplaced": tracks.detections_unplaced,
+            "detections_below_threshold": tracks.detections_below_threshold,
+        }
+        finite = [d for d in truth.detections if d.placed]
         t_ids = [d.instance_id for d in finite]
         t_xy = np.array([d.position_m[:2] for d in finite]).reshape(-1, 2)
         h_ids = [t.track_id for t in tracks.tracks]
         h_xy = np.array([t.position_m[:2] for t in tracks.tracks]).reshape(-1, 2)
+        sim = ground_similarity(t_xy, h_xy, self.spec.track_gate_m)
         self._mot.update(t_ids, t_xy, h_ids, h_xy)
+        self._hota.update(t_ids, h_ids, sim)
         for name, band in self._track_frame_context(truth).items():
             per = self._mot_by_context.setdefault(name, {})
             if band not in per:
                 per[band] = MotScorer(self.spec.track_gate_m)
             per[band].update(t_ids, t_xy, h_ids, h_xy)
+            hota = self._hota_by_context.setdefault(name, {})
+            if band not in hota:
+                hota[band] = HotaAccumulator()
+            hota[band].update(t_ids, h_ids, sim)
+
+    def take_gallery_items(self) -> list[GalleryItem]:
+        """Gallery items kept since the last call: the node crops their images."""
+        return self._gallery.take_new() if self._gallery is not None else []
+
+    def gallery_items(self) -> list[GalleryItem]:
+        """The gallery now: worst false positives, then worst misses."""
+        return self._gallery.items() if self._gallery is not None else []
 
     # ---- reading -------------------------------------------------------------------------
 
@@ -509,14 +628,18 @@ class RunScorer:
         )  # fmt: skip
         return err.position_mean_m
 
-    def summary(self, now_s: float, *, tracking: bool = True) -> dict[str, Any]:
+    def summary(self, now_s: float, *, tracking: bool = True, coco: bool = False) -> dict[str, Any]:
         """Every metric of the run so far, as plain JSON-able data (NaN -> None by the writer).
 
         Args:
             tracking: recompute the MOT metrics (py-motmetrics takes ~50 ms per accumulator on
                 a long run); ``False`` reuses the last computed ones.
+            coco: run the COCO evaluation (pycocotools, seconds on a long run: the final summary);
+                ``False`` reuses the last one, if any.
         """
         spec = self.spec
+        if tracking and self._coco is not None:
+            self._coco.update()  # the COCO matching of the frames scored since, so the final summary is quick
         times = np.array([p.t_s for p in self._poses])
         alt = altitude_stats(times, np.array(self._agl), spec.altitude_floor_m)
         bat = battery_use(self._battery)
@@ -583,7 +706,8 @@ class RunScorer:
                     for c in self._collisions
                 ],
             },
-            "detection": self._detection_summary(),
+            "detection": self._detection_summary(coco=coco),
+            "search": self._search_summary(),
             "tracking": self._tracking_summary() if tracking or self._tracking_cache is None else self._tracking_cache,
             "depth": self._depth_summary(),
             "moving_objects": self._trail_summary(),
@@ -636,10 +760,20 @@ class RunScorer:
             "view_angle": spec.view_angle_bands_deg,
             "range": spec.range_bands_m,
             "altitude": spec.altitude_bands_m,
+            "pixel_size": spec.pixel_size_bands_px,
+            "visible_fraction": spec.visible_fraction_bands,
         }[name]
         return edges, CONTEXTS[name]
 
-    def _detection_summary(self) -> dict[str, Any]:
+    def coco_summary(self) -> dict[str, Any]:
+        """COCO AP/AP50/AR and precision-recall curves of the detector, overall and by context (slow)."""
+        if self._coco is None:
+            return {"images": 0}
+        if self._coco_cache is None:
+            self._coco_cache = self._coco.evaluate()
+        return self._coco_cache
+
+    def _detection_summary(self, *, coco: bool = False) -> dict[str, Any]:
         def first(fd: _FirstDetection | None) -> dict[str, float]:
             if fd is None:
                 return {"t_s": math.nan, "range_m": math.nan}
@@ -649,15 +783,23 @@ class RunScorer:
         for name, per in self._det_by_context.items():
             edges, unit = self._bands(name)
             by_context[name] = {band_label(k, edges, unit): per[k].as_dict() for k in sorted(per)}
-        return {
+        out: dict[str, Any] = {
             "source": self.detection_source,
             "frames": self._det_frames,
+            "score_threshold": self.score_threshold,
             **self._det_total.as_dict(),
             "first_detection": first(self._first_detection_any),
             "person_first_in_view": first(self._first_person_seen),
             "person_first_detected": first(self._first_person_detected),
             "by_context": by_context,
+            "geolocation": self._geo.summary(),
+            "gallery": [item.as_dict() for item in self._gallery.items()] if self._gallery is not None else [],
         }
+        if coco:
+            out["coco"] = self.coco_summary()
+        elif self._coco_cache is not None:
+            out["coco"] = self._coco_cache
+        return out
 
     def _tracking_summary(self) -> dict[str, Any]:
         self._tracking_cache = self._tracking_summary_now()
@@ -666,11 +808,22 @@ class RunScorer:
     def _tracking_summary_now(self) -> dict[str, Any]:
         if self._mot is None:
             return {"frames": 0}
+
+        def both(mot: MotScorer, hota: HotaAccumulator) -> dict[str, float]:
+            h = hota.result()
+            return {**mot.result().as_dict(), "hota": h.hota, "deta": h.deta, "assa": h.assa, "loca": h.loca}
+
         by_context: dict[str, dict[str, dict[str, float]]] = {}
         for name, per in self._mot_by_context.items():
             edges, unit = self._bands(name)
-            by_context[name] = {band_label(k, edges, unit): per[k].result().as_dict() for k in sorted(per)}
-        return {**self._mot.result().as_dict(), "by_context": by_context}
+            hotas = self._hota_by_context[name]
+            by_context[name] = {band_label(k, edges, unit): both(per[k], hotas[k]) for k in sorted(per)}
+        return {
+            **both(self._mot, self._hota),
+            "hota_detail": self._hota.result().as_dict(),
+            "inputs": dict(self._track_inputs),
+            "by_context": by_context,
+        }
 
     def _depth_context(self, sample: DepthMetricsSample) -> dict[str, str]:
         """Altitude, view angle (of the camera's axis) and clutter (objects in that camera's frame) of a depth frame."""

@@ -112,6 +112,9 @@ class GridSnapshot:
 
 @dataclass(frozen=True)
 class Detection:
+    """One object in one image: the ground truth's (instance id, true centre, visible fraction) or a
+    detector's, placed by the geolocator (instance id 0, ground position with covariance, or NaN)."""
+
     instance_id: int
     class_name: str
     score: float
@@ -120,6 +123,27 @@ class Detection:
     range_m: float
     visible_fraction: float
     position_m: Vec3 = NAN3
+    #: Row-major 3x3 covariance of ``position_m`` (m²); empty or NaN when unknown.
+    position_cov_m2: tuple[float, ...] = ()
+    #: ``ground_truth`` | ``depth`` | ``elevation`` | ``terrain``, or ``unplaced:<reason>``; "" if unknown.
+    position_source: str = ""
+
+    @property
+    def placed(self) -> bool:
+        """Whether the detection has a position (a finite one)."""
+        return all(math.isfinite(v) for v in self.position_m)
+
+    @property
+    def size_px(self) -> float:
+        """Pixel size: the square root of the box's area (TinyPerson's absolute size)."""
+        x0, y0, x1, y1 = self.bbox_px
+        return math.sqrt(max(0, x1 - x0 + 1) * max(0, y1 - y0 + 1))
+
+    @property
+    def box_xywh(self) -> tuple[float, float, float, float]:
+        """The box as COCO's ``[x, y, w, h]`` on pixel edges (pixel ``k`` spans ``[k - 0.5, k + 0.5]``)."""
+        x0, y0, x1, y1 = self.bbox_px
+        return (x0 - 0.5, y0 - 0.5, float(x1 - x0 + 1), float(y1 - y0 + 1))
 
 
 @dataclass(frozen=True)
@@ -128,6 +152,8 @@ class DetectionFrame:
     camera: str
     source: str
     detections: tuple[Detection, ...] = ()
+    #: Detections of this image the producer discarded, by reason (NaN or out-of-image boxes...).
+    discarded: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -205,6 +231,10 @@ class TrackFrame:
     t_s: float
     camera: str
     tracks: tuple[Track, ...] = ()
+    #: The tracker's running counts: detections given, and those it could not use (no position; low score).
+    detections_received: int = 0
+    detections_unplaced: int = 0
+    detections_below_threshold: int = 0
 
 
 @dataclass(frozen=True)
