@@ -156,7 +156,7 @@ def test_unoccluded_pixels_count_each_pixel_once(scene: tuple[World, Renderer]) 
     for eye in ([0.0, 0.0, 15.0], [0.0, -10.0, 8.0], [3.0, -6.0, 2.0], [5.0, 5.0, 30.0], [0.0, -20.0, 1.0]):
         pose = look_at(eye, [0.0, 0.0, 0.8])
         visible = int((renderer.render(cam, pose).instance_id == person.instance_id).sum())
-        assert visible > 20
+        assert visible > 10  # in view (the articulated figure, ~0.3 m across, covers ~19 px from 30 m up)
         assert renderer.unoccluded_pixel_counts(cam, pose, [person.instance_id]) == {person.instance_id: visible}
 
 
