@@ -213,6 +213,23 @@ def test_bad_input_is_refused_before_anything_starts(cluster: dict[str, Any], tm
     assert "arm 'stale_first'" in proc.stderr
     assert "'wieghts'" in proc.stderr
     assert not (tmp_path / "bad_out").exists()
+    # a setting the sim bridge would refuse (camera extrinsics belong in config/robot.yaml) and one the SITL
+    # would: exit 2 before any run starts, naming the arm and the key (every run used to die at its start)
+    for override, says in (
+        ("stale_first: {node_params.sim_bridge.cameras.nadir.mount: {rpy_deg: [0, 90, 0]}}", "cameras.nadir.mount"),
+        ("stale_first: {node_params.sitl.battery.capacity_mahh: 100}", "capacity_mahh"),
+    ):
+        refused = tmp_path / "refused.yaml"
+        refused.write_text(other.read_text().replace("stale_first: {autonomy.weights.age: -1.0}", override))
+        argv = ["uav-campaign", "run", str(refused), "--out", str(tmp_path / "refused_out")]
+        proc = subprocess.run(
+            [*argv, "--scheduler", cluster["address"]],
+            capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+        assert proc.returncode == 2, proc.stdout + proc.stderr
+        assert "arm 'stale_first'" in proc.stderr, proc.stderr
+        assert says in proc.stderr, proc.stderr
+        assert not (tmp_path / "refused_out").exists()
 
 
 def test_ctrl_c_stops_the_runs_cleanly_and_the_next_invocation_resumes() -> None:

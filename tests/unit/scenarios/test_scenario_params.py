@@ -177,3 +177,31 @@ def test_detector_geolocator_and_tracker_settings(tmp_path: Path) -> None:
     assert geo["detector"] == "degraded_truth"
     degraded = parse_node_params(DegradedDetectorParams, node_params(stand_in, "degraded_detector"), node="x")
     assert (degraded.degrade.seed, degraded.degrade.jitter_px) == (9, 1.0)
+
+
+def test_lockstep_runs_give_every_timeout_a_wall_clock_floor(tmp_path: Path) -> None:
+    """A lockstep run goes several times faster than real time: its link, pose and offboard-stream timeouts need
+    2 s of wall-clock silence too, whatever the scenario file says (a test scenario without it lost the link
+    for 0.1 s on a busy machine); real-time runs keep the configured floor; node_params still win."""
+    from uav_scenarios.core.launch import RunPorts, sitl_argv  # noqa: PLC0415
+
+    data = yaml.safe_load((REPO / "config/scenarios/loiter.yaml").read_text())
+    data["node_params"].pop("waypoint_controller", None)
+    data["node_params"]["sitl"].pop("time", None)
+    data["world"]["config"] = str(REPO / "config/worlds/default.yaml")
+    data["time"] = {"mode": "lockstep"}
+    path = tmp_path / "plain.yaml"
+    path.write_text(yaml.safe_dump(data))
+    lockstep = load_scenario(path)
+    assert lockstep.time.mode is TimeMode.LOCKSTEP
+    assert node_params(lockstep, "waypoint_controller")["wall_floor_s"] == 2.0
+    assert node_params(lockstep, "autopilot_odometry")["wall_floor_s"] == 2.0
+    ports = RunPorts()
+    argv = sitl_argv(lockstep, ports, params_file=tmp_path / "p.json")
+    assert "time.stream_wall_floor_s=2" in argv
+    realtime = replace(lockstep, time=replace(lockstep.time, mode=TimeMode.FREE))
+    assert "wall_floor_s" not in node_params(realtime, "waypoint_controller")
+    assert "time.stream_wall_floor_s=2" not in sitl_argv(realtime, ports, params_file=tmp_path / "p.json")
+    data["node_params"]["waypoint_controller"] = {"wall_floor_s": 0.25}
+    path.write_text(yaml.safe_dump(data))
+    assert node_params(load_scenario(path), "waypoint_controller")["wall_floor_s"] == 0.25

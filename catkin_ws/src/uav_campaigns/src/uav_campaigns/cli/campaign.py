@@ -35,6 +35,7 @@ from uav_common.config import ConfigError, load_yaml_mapping
 from uav_common.errors import ResourceError
 from uav_common.exit_codes import ExitCode
 from uav_scenarios.core.config import load_scenario
+from uav_scenarios.shell.preflight import check_runs
 
 __all__ = ["main"]
 
@@ -75,7 +76,10 @@ def _plan(campaign: Campaign) -> list[PlannedRun]:
             msg = f"cannot read world file {path}: {err.strerror}"
             raise ConfigError(msg) from err
 
-    return plan_runs(campaign, base, read_world)
+    runs = plan_runs(campaign, base, read_world)
+    # what the sim bridge or the SITL would refuse is an error now, not every run dying at its start
+    check_runs((f"{campaign.source or 'the campaign'}: arm {r.arm!r} (seed {r.seed})", r.scenario) for r in runs)
+    return runs
 
 
 def _summary_lines(campaign: Campaign, tables: Tables) -> list[str]:

@@ -44,6 +44,7 @@ from uav_scenarios.report.data import read_run_bag
 from uav_scenarios.report.html import build_report
 from uav_scenarios.report.text import headline
 from uav_scenarios.shell.environment import check_actors, environment_presets, scenario_environment, with_environment
+from uav_scenarios.shell.preflight import check_node_settings
 from uav_scenarios.shell.versions import tool_versions
 from uav_scenarios.shell.world_store import load_world
 from uav_sim_bridge.core.motion import ActorsConfig
@@ -235,6 +236,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:
     try:
         stress = tuple(args.stress)
         scenario = _overrides(load_scenario(args.scenario, stress=stress, stress_dir=config_dir() / "stress"), args)
+        check_node_settings(scenario)  # what the bridge and the SITL would refuse, before anything starts
         fixed = dict(item.split("=", 1) for item in args.port)
         allocate_ports(fixed)
         presets: list[str] = []

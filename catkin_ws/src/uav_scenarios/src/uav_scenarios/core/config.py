@@ -31,6 +31,7 @@ from uav_sim_bridge.core.motion import ActorsConfig
 
 __all__ = [
     "LINK_ENDPOINTS",
+    "LOCKSTEP_WALL_FLOOR_S",
     "AutonomySpec",
     "AutopilotKind",
     "DepthSource",
@@ -81,6 +82,12 @@ class Strategy(enum.Enum):
     AUTONOMOUS = "autonomous"
     LAWNMOWER = "lawnmower"
     EXPANDING_SQUARE = "expanding_square"
+
+
+#: In lockstep a timeout (link, position, pose, estimate, the SITL's offboard stream) also needs this many wall
+#: seconds: a lockstep run goes several times faster than real time, so a process starved of CPU for half a
+#: wall second on a busy machine would otherwise read as seconds of silence. ``node_params`` overrides it.
+LOCKSTEP_WALL_FLOOR_S = 2.0
 
 
 class TimeMode(enum.Enum):

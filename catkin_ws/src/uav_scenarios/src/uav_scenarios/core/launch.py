@@ -20,10 +20,10 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from uav_scenarios.core.config import LinkImpairmentSpec, PoseSource, Scenario, TimeMode
+from uav_scenarios.core.config import LOCKSTEP_WALL_FLOOR_S, LinkImpairmentSpec, PoseSource, Scenario, TimeMode
 from uav_scenarios.errors import ScenarioError
 
-__all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv"]
+__all__ = ["RunPorts", "flatten_settings", "router_conf", "sitl_argv", "yaml_scalar"]
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ def flatten_settings(data: Mapping[str, Any], prefix: str = "") -> list[tuple[st
     return out
 
 
-def _yaml_scalar(value: Any) -> str:
+def yaml_scalar(value: Any) -> str:
     """A value as ``--set`` parses it (YAML): lists/dicts in flow style, None as null."""
     if value is None:
         return "null"
@@ -83,9 +83,9 @@ def _yaml_scalar(value: Any) -> str:
         msg = f"non-finite SITL setting {value!r}"
         raise ScenarioError(msg)
     if isinstance(value, list | tuple):
-        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+        return "[" + ", ".join(yaml_scalar(v) for v in value) + "]"
     if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{k}: {_yaml_scalar(v)}" for k, v in value.items()) + "}"
+        return "{" + ", ".join(f"{k}: {yaml_scalar(v)}" for k, v in value.items()) + "}"
     return str(value)
 
 
@@ -117,11 +117,12 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
             "--api-port", str(ports.controller), "--api-local-port", "0",
         ]  # fmt: skip
     if scenario.time.mode is TimeMode.LOCKSTEP:
-        argv.append("--lockstep")
+        # the offboard-stream failsafe needs wall-clock silence too (node_params.sitl below may change it)
+        argv += ["--lockstep", "--set", f"time.stream_wall_floor_s={LOCKSTEP_WALL_FLOOR_S:g}"]
     else:
         argv += ["--speed-factor", f"{scenario.time.speed_factor:g}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
-        argv += ["--set", f"{key}={_yaml_scalar(value)}"]
+        argv += ["--set", f"{key}={yaml_scalar(value)}"]
     return argv
 
 

@@ -26,6 +26,7 @@ from uav_common.robot import RobotDescription
 from uav_scenarios.core.config import (
     FEATURE_NAMES,
     GEOLOCATED_TOPIC,
+    LOCKSTEP_WALL_FLOOR_S,
     DepthSource,
     DetectorKind,
     MissionKind,
@@ -94,6 +95,8 @@ def planner(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
 
 def controller(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     out: dict[str, Any] = {"takeoff_height_m": scenario.autonomy.takeoff_alt_m}
+    if scenario.time.mode is TimeMode.LOCKSTEP:
+        out["wall_floor_s"] = LOCKSTEP_WALL_FLOOR_S
     if scenario.search is not None:
         out["scripted_altitude_m"] = scenario.search.scripted_alt_m
     if ctx.battery_capacity_mah is not None:
@@ -194,7 +197,7 @@ def scorer(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     }
 
 
-def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+def autopilot_odometry(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     """The autopilot odometry node: config/autonomy.yaml's settings, with the SITL's clock shared.
 
     The SITL's time since boot (ODOMETRY's ``time_usec``) *is* the simulation time ``/clock`` carries, so the
@@ -203,7 +206,10 @@ def autopilot_odometry(_scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     node checks TIMESYNC against an autopilot whose clock is 1000 s off). ``node_params.autopilot_odometry``
     overrides this.
     """
-    return {"time_sync": "shared"}
+    out: dict[str, Any] = {"time_sync": "shared"}
+    if scenario.time.mode is TimeMode.LOCKSTEP:
+        out["wall_floor_s"] = LOCKSTEP_WALL_FLOOR_S
+    return out
 
 
 def tracker(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
