@@ -34,8 +34,9 @@ Results (``bench/results/latest.jsonl``):
   ``map -> odom -> base_link``) over the ``lossy_link`` stress preset (20 % of the frames lost each way on the
   controller's link, 30 ms delay, 20 ms jitter, 1 % reordered; the GCS link fading); baseline: the default
   loiter's in the same run. Issue 23 allows it to lose at most 10 % (ratio >= 0.9). Its notes give the pose
-  error, the map precision of both, the frames dropped and the autopilot odometry node's CPU. Wind joins it
-  when the SITL simulates wind. ``--skip-autopilot-lossy`` leaves it out.
+  error, the map precision of both, the frames dropped and the autopilot odometry node's CPU. It flies in the
+  ``gusty`` preset's wind (5 m/s from the west at 10 m, shear 0.14, moderate seeded Dryden turbulence), so the
+  SITL's wind model is in the loop too. ``--skip-autopilot-lossy`` leaves it out.
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
@@ -375,7 +376,8 @@ def main() -> int:
             rtf,
             target=f"ratio >= {1.0 - AUTOPILOT_LOSSY_MAX_LOSS:.2f} (loses at most {AUTOPILOT_LOSSY_MAX_LOSS:.0%})",
             met=ratio >= 1.0 - AUTOPILOT_LOSSY_MAX_LOSS,
-            notes=f"the loiter on the autopilot's estimate (pose_source: autopilot) over the lossy_link preset (runs "
+            notes=f"the loiter on the autopilot's estimate (pose_source: autopilot) over the lossy_link preset in the "
+            f"gusty preset's wind (runs "
             f"{lossy.rtfs()}); baseline: the default loiter in the same run ({loiter.rtfs()}); pose error rms "
             + ", ".join(f"{e['position_rms_m']:.2f} m / {e['yaw_rms_deg']:.2f} deg" for e in pose)
             + f"; map precision {lossy.mean(lambda i: float(lossy.metrics[i]['map_accuracy']['precision'])):.3f} "
@@ -399,14 +401,15 @@ def static_world_scenario(path: Path) -> Path:
 
 
 def autopilot_lossy_scenario(path: Path) -> Path:
-    """config/scenarios/loiter.yaml on the autopilot's estimate over the lossy_link stress preset, written to ``path``
+    """config/scenarios/loiter.yaml on the autopilot's estimate over the lossy_link stress preset, in the gusty
+    preset's wind (5 m/s from the west, moderate Dryden turbulence), written to ``path``
     (the world file and the preset made absolute so the copy can live anywhere)."""
     scenario = yaml.safe_load(LOITER.read_text())
     world = scenario.get("world") or {}
     if "config" in world:
         world["config"] = str((LOITER.parent / world["config"]).resolve())
     scenario["pose_source"] = "autopilot"
-    scenario["stress"] = [str(REPO / "config" / "stress" / "lossy_link.yaml")]
+    scenario["stress"] = [str(REPO / "config" / "stress" / name) for name in ("lossy_link.yaml", "gusty.yaml")]
     path.write_text(yaml.safe_dump(scenario, sort_keys=False))
     return path
 

@@ -82,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reset-params", action="store_true", help="delete the parameter file first (back to defaults)")
     p.add_argument("--estimator", choices=("truth", "noisy"), help="report the truth or truth + seeded noise")
     p.add_argument("--seed", type=int, help="estimator noise seed")
+    p.add_argument("--wind", metavar="SPEED_MPS,FROM_DEG", help="mean wind at wind.reference_height_m, e.g. 8,270")
+    p.add_argument(
+        "--turbulence", choices=("none", "light", "moderate", "severe"), help="Dryden turbulence (MIL-F-8785C level)"
+    )
     p.add_argument("--duration", type=float, help="stop after this much simulation time (s)")
     p.add_argument("--print-config", action="store_true", help="print the effective configuration and exit")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -139,6 +143,15 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:  # noqa: PL
         out["estimator.mode"] = args.estimator
     if args.seed is not None:
         out["estimator.seed"] = args.seed
+    if args.wind is not None:
+        parts = args.wind.split(",")
+        if len(parts) != 2:
+            msg = f"--wind expects SPEED_MPS,FROM_DEG (e.g. 8,270), got {args.wind!r}"
+            raise SitlConfigError(msg)
+        out["wind.speed_mps"] = _parse_value(parts[0])
+        out["wind.from_deg"] = _parse_value(parts[1])
+    if args.turbulence is not None:
+        out["wind.turbulence"] = args.turbulence
     for item in args.set:
         key, sep, value = item.partition("=")
         if not sep or not key:

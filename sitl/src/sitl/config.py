@@ -43,7 +43,9 @@ __all__ = [
     "TcpLinkConfig",
     "TimeConfig",
     "TimeMode",
+    "TurbulenceLevel",
     "UdpLinkConfig",
+    "WindConfig",
     "load_sitl_config",
     "params_for_config",
 ]
@@ -342,6 +344,41 @@ class MavlinkConfig:
         require(0.0 <= self.stats_period_s <= 3600.0, "'stats_period_s' must be in [0, 3600] (0 = off)")
 
 
+class TurbulenceLevel(enum.Enum):
+    """Dryden turbulence level (MIL-F-8785C's wind at 20 ft: 15, 30, 45 kt)."""
+
+    NONE = "none"
+    LIGHT = "light"
+    MODERATE = "moderate"
+    SEVERE = "severe"
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """The air the vehicle flies in: mean wind by height (power law) and seeded Dryden turbulence."""
+
+    speed_mps: float = 0.0
+    from_deg: float = 0.0
+    reference_height_m: float = 10.0
+    shear_exponent: float = 0.0
+    turbulence: TurbulenceLevel = TurbulenceLevel.NONE
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        require(0.0 <= self.speed_mps <= 40.0, f"'speed_mps' must be in [0, 40], got {self.speed_mps}")
+        require(0.0 <= self.from_deg <= 360.0, f"'from_deg' must be in [0, 360], got {self.from_deg}")
+        require(
+            1.0 <= self.reference_height_m <= 500.0,
+            f"'reference_height_m' must be in [1, 500], got {self.reference_height_m}",
+        )
+        require(0.0 <= self.shear_exponent <= 1.0, f"'shear_exponent' must be in [0, 1], got {self.shear_exponent}")
+        require(0 <= self.seed < 2**63, "'seed' must be a non-negative integer")
+
+    @property
+    def enabled(self) -> bool:
+        return self.speed_mps > 0.0 or self.turbulence is not TurbulenceLevel.NONE
+
+
 class AutopilotName(enum.Enum):
     """Which autopilot the SITL is (``--autopilot``): its heartbeat, modes, parameters and conventions."""
 
@@ -363,6 +400,7 @@ class SitlConfig:
     links: LinksConfig = field(default_factory=LinksConfig)
     sim_link: SimLinkConfig = field(default_factory=SimLinkConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    wind: WindConfig = field(default_factory=WindConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
     @property

@@ -170,6 +170,7 @@ class JsbsimQuad:
         self._sim_time_s = 0.0
         self._last_throttle = (0.0, 0.0, 0.0, 0.0)
         self._last_voltage_v = motor_max_voltage_v
+        self._wind_nodes = [node(f"atmosphere/wind-{axis}-fps") for axis in ("north", "east", "down")]
 
     # ------------------------------------------------------------------ stepping
     def step(self, duty: tuple[float, float, float, float], battery_voltage_v: float) -> None:
@@ -193,6 +194,21 @@ class JsbsimQuad:
             msg = "JSBSim run() returned false"
             raise FdmError(msg)
         self._sim_time_s += self.dt_s
+
+    def set_wind_ned(self, wind_ned_mps: tuple[float, float, float]) -> None:
+        """The air's velocity over the ground (NED, m/s): JSBSim's ``atmosphere/wind-*-fps``."""
+        n = self._wind_nodes
+        for node_, value in zip(n, wind_ned_mps, strict=True):
+            node_.set_double_value(value / FT_TO_M)
+
+    def wind_ned_mps(self) -> tuple[float, float, float]:
+        """The wind JSBSim applied in the last step (``atmosphere/total-wind-*-fps``), NED m/s."""
+        f = self._fdm
+        return (
+            f["atmosphere/total-wind-north-fps"] * FT_TO_M,
+            f["atmosphere/total-wind-east-fps"] * FT_TO_M,
+            f["atmosphere/total-wind-down-fps"] * FT_TO_M,
+        )
 
     def set_terrain_amsl(self, elevation_m: float) -> None:
         """Move JSBSim's ground to ``elevation_m`` AMSL (from the bridge's TERRAIN_REPORT)."""

@@ -265,6 +265,17 @@ class Simulator:
             self.ports(),
             compiled_core.active().reason,
         )
+        w = self.cfg.wind
+        if w.enabled:
+            log.info(
+                "wind: %g m/s from %g deg at %g m (shear exponent %g), turbulence %s, seed %d",
+                w.speed_mps,
+                w.from_deg,
+                w.reference_height_m,
+                w.shear_exponent,
+                w.turbulence.value,
+                w.seed,
+            )
         if self.cfg.time.mode is TimeMode.LOCKSTEP:
             self._run_lockstep(max_sim_time_s)
         else:

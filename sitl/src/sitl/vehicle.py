@@ -7,7 +7,10 @@ grants) and passes the wall-clock time in for the link-loss checks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+
+import numpy as np
 
 from sitl.config import EstimatorMode, SitlConfig, params_for_config
 from sitl.core.autopilot import Autopilot
@@ -16,6 +19,7 @@ from sitl.core.control import Mixer
 from sitl.core.estimator import Estimator, NoiseModel
 from sitl.core.params import ParamTable
 from sitl.core.state import LocalState, VehicleState
+from sitl.core.wind import WindModel, WindSpec
 from sitl.fdm import JsbsimQuad
 from uav_common.geo import GeoPoint, LocalProjection
 
@@ -88,6 +92,18 @@ class Vehicle:
         self._avionics_w = b.avionics_power_w
         self._vmax = phys.motor_max_voltage_v
         self._power_sum_w = 0.0
+        w = cfg.wind
+        self.wind: WindModel | None = None
+        if w.enabled:
+            spec = WindSpec(w.speed_mps, w.from_deg, w.reference_height_m, w.shear_exponent, w.turbulence.value)
+            self.wind = WindModel(spec, np.random.default_rng(w.seed))
+            self._update_wind()
+
+    def _update_wind(self) -> None:
+        """The wind at the vehicle's height for the next outer-loop period (only with ``wind`` configured)."""
+        assert self.wind is not None
+        s = self.truth()
+        self.fdm.set_wind_ned(self.wind.update(s.height_above_ground_m, s.vel_ned_mps, self.dt_s * self.divider))
 
     def truth(self) -> VehicleState:
         """Ground truth at the present step (cached)."""
@@ -98,7 +114,10 @@ class Vehicle:
 
     @property
     def battery_reading(self) -> BatteryReading:
-        return self.battery.reading
+        reading = self.battery.reading
+        if self.autopilot.faults.battery_off:
+            return dataclasses.replace(reading, remaining=0.0)
+        return reading
 
     @property
     def pos_ned_truth_m(self) -> tuple[float, float, float]:
@@ -115,14 +134,22 @@ class Vehicle:
         battery = self.battery
         fdm = self.fdm
         divider = self.divider
+        faults = ap.faults
         if self.steps % divider == 0:
+            if self.wind is not None and self.steps:
+                self._update_wind()
+            self.estimator.gps_failed = faults.gps_off
             self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
-            ap.outer_update(self.t_s, wall_s, self.est, battery.soc, battery.terminal_voltage_v)
+            soc = 0.0 if faults.battery_off else battery.soc  # PX4's battery simulator: forced empty
+            ap.outer_update(self.t_s, wall_s, self.est, soc, battery.terminal_voltage_v)
         q, rates = fdm.attitude_and_rates()
         voltage = battery.terminal_voltage_v
         # max(voltage, 1.0) written out (this runs every step)
         duty = ap.inner_update(q, rates, self.dt_s, self._vmax / (1.0 if voltage < 1.0 else voltage))
-        self.duty = duty
+        self.duty = duty  # what the autopilot commands (HIL_ACTUATOR_CONTROLS)
+        if faults.motors_degraded:  # a failed motor delivers less than it is commanded
+            f = faults.motor_factors
+            duty = (duty[0] * f[0], duty[1] * f[1], duty[2] * f[2], duty[3] * f[3])
         fdm.step(duty, voltage)
         # the electrical power of every step is integrated; the battery state (and its terminal
         # voltage) advances once per outer-loop period with the mean power of those steps

@@ -5,7 +5,8 @@ ODOMETRY into the odometry and the ``map -> odom -> base_link`` tf that the map 
 planner and the controller's pose watch use; the sim bridge publishes no pose tf), the SITL's noisy
 estimator (a per-run bias drawn from its seed, plus a wandering error), and the ``lossy_link`` stress preset
 (20 % of the frames lost each way on the controller's link, delay, jitter, reordering) with the odometry
-node's link as lossy (the scenario adds it). The run must fly, map and score the pose error it flew with;
+node's link as lossy (the scenario adds it), in the ``gusty`` preset's wind (5 m/s from the west, moderate
+Dryden turbulence, flown by the SITL's JSBSim atmosphere). The run must fly, map and score the pose error it flew with;
 it must either complete (its time limit) or fail safe with the reason in its events.
 """
 
@@ -38,7 +39,13 @@ def test_loiter_on_the_autopilot_estimate_over_a_lossy_link() -> None:
     if m["stop_reason"] != "time_limit":
         reasons = [e for e in events if e.startswith("controller IDLE because:")]
         assert reasons, f"stopped on {m['stop_reason']} with no reason recorded: {events}\n{out[-2000:]}"
-    assert "stress_applied" in (run_dir / "scenario.yaml").read_text()
+    effective = (run_dir / "scenario.yaml").read_text()
+    assert "stress_applied" in effective
+    assert "gusty" in effective
+    # the SITL flew in the wind the scenario asked for
+    wind_line = "wind: 5 m/s from 270 deg at 10 m (shear exponent 0.14), turbulence moderate, seed 1"
+    logs = [p for p in run_dir.rglob("*") if p.is_file() and p.stat().st_size < 50_000_000]
+    assert any(wind_line in p.read_text(errors="replace") for p in logs) or wind_line in out, out[-3000:]
 
     # it flew and mapped, on the estimate
     assert m["time"]["airborne_s"] > 20.0

@@ -140,11 +140,36 @@ def test_runnable_stress_presets_lay_over_a_scenario(preset: str, tmp_path: Path
 
 
 @pytest.mark.parametrize(
-    ("preset", "key"), [("gusty", "wind"), ("strong_wind", "wind"), ("motor_degradation", "faults")]
+    ("preset", "speed_mps", "turbulence"), [("gusty", 5.0, "moderate"), ("strong_wind", 12.0, "light")]
 )
-def test_presets_the_sitl_cannot_run_yet_fail_clearly(preset: str, key: str) -> None:
-    with pytest.raises(ConfigError, match=rf"with stress {preset}.*{key}: .* is not yet simulated by the SITL"):
-        load_scenario(LOITER, stress=(preset,), stress_dir=STRESS)
+def test_wind_presets_reach_the_sitl(preset: str, speed_mps: float, turbulence: str, tmp_path: Path) -> None:
+    s = load_scenario(LOITER, stress=(preset,), stress_dir=STRESS)
+    assert s.wind is not None
+    assert s.wind.speed_mps == speed_mps
+    argv = sitl_argv(s, PORTS, params_file=tmp_path / "p.json")
+    cfg = load_from_args(build_parser().parse_args(argv[1:]))
+    assert cfg.wind.speed_mps == speed_mps
+    assert cfg.wind.turbulence.value == turbulence
+    assert cfg.wind.shear_exponent == 0.14
+    assert cfg.wind.seed == 1
+    assert cfg.wind.enabled
+    # node_params.sitl still wins over the scenario's wind, key by key
+    over = load_scenario(
+        write(tmp_path, f"stress: [{preset}]\nnode_params: {{sitl: {{wind: {{seed: 9}}}}}}\n"), stress_dir=STRESS
+    )
+    cfg = load_from_args(build_parser().parse_args(sitl_argv(over, PORTS, params_file=tmp_path / "q.json")[1:]))
+    assert (cfg.wind.seed, cfg.wind.speed_mps) == (9, speed_mps)
+
+
+def test_a_calm_scenario_leaves_the_sitl_calm(tmp_path: Path) -> None:
+    argv = sitl_argv(load_scenario(LOITER), PORTS, params_file=tmp_path / "p.json")
+    assert not any(a.startswith("wind.") for a in argv)
+    assert not load_from_args(build_parser().parse_args(argv[1:])).wind.enabled
+
+
+def test_scripted_faults_are_refused_until_the_mission_manager_sends_them() -> None:
+    with pytest.raises(ConfigError, match=r"with stress motor_degradation.*faults: scripted in-flight faults"):
+        load_scenario(LOITER, stress=("motor_degradation",), stress_dir=STRESS)
 
 
 def test_stress_in_the_scenario_file_and_its_errors(tmp_path: Path) -> None:
@@ -166,7 +191,7 @@ def test_stress_in_the_scenario_file_and_its_errors(tmp_path: Path) -> None:
         load_scenario(path)
 
 
-def test_wind_and_fault_values_are_checked_before_they_are_refused(tmp_path: Path) -> None:
+def test_wind_and_fault_values_are_checked(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"wind.*speed_mps must be in \[0, 40\], got 80"):
         load_scenario(write(tmp_path, "wind: {speed_mps: 80}\n"))
     with pytest.raises(ConfigError, match=r"faults.*unit: unknown fault unit 'wing'"):
@@ -174,7 +199,7 @@ def test_wind_and_fault_values_are_checked_before_they_are_refused(tmp_path: Pat
     with pytest.raises(ConfigError, match=r"faults.*type: unknown fault type 'melted'"):
         load_scenario(write(tmp_path, "faults: [{at_s: 10, unit: gps, type: melted}]\n"))
     # "at t = 120 s, GPS off": YAML reads a bare off as false, which means the same here
-    with pytest.raises(ConfigError, match="faults: in-flight fault injection is not yet simulated"):
+    with pytest.raises(ConfigError, match="faults: scripted in-flight faults are not yet run"):
         load_scenario(write(tmp_path, "faults: [{at_s: 120, unit: gps, type: off}]\n"))
 
 
@@ -266,6 +291,6 @@ def test_uav_run_lays_stress_presets_over_the_scenario_and_refuses_bad_ones(
     err = capsys.readouterr().err
     assert "stress: no preset 'no_such_preset'" in err
     assert "lossy_link" in err  # it lists what there is
-    assert main([str(LOITER), "--stress", "gusty", "--runs-dir", str(tmp_path)]) == 2
-    assert "wind: wind and turbulence is not yet simulated by the SITL" in capsys.readouterr().err
+    assert main([str(LOITER), "--stress", "motor_degradation", "--runs-dir", str(tmp_path)]) == 2
+    assert "faults: scripted in-flight faults are not yet run" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())  # nothing was started, no run folder made

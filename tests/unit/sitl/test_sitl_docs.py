@@ -83,6 +83,8 @@ def same(doc: Any, code: Any) -> bool:
         return True
     if isinstance(code, enum.Enum):
         code = code.value
+        if doc is None and code == "none":  # an enum member named none (wind.turbulence)
+            return True
     if isinstance(code, bool) and doc in ("enabled", "disabled"):
         return code == (doc == "enabled")
     if isinstance(code, Path):

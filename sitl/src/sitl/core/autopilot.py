@@ -31,7 +31,8 @@ from sitl.core.control import (
     attitude_rate_setpoint,
     quat_from_yaw,
 )
-from sitl.core.failsafe import FailsafeEvent, FailsafeInputs, FailsafeMonitor
+from sitl.core.failsafe import FailsafeEvent, FailsafeInputs, FailsafeKind, FailsafeMonitor
+from sitl.core.faults import FaultState, InjectOutcome
 from sitl.core.geofence import FenceStore
 from sitl.core.landing import LandDetector
 from sitl.core.mission import MissionItem, MissionStore
@@ -135,6 +136,7 @@ class Autopilot:
         self.land_detector = LandDetector()
         # a client acting in wall time (MAVSDK: arm, then takeoff) may need this long at any speed factor
         self._client_wall_floor_s = datalink_floor_s
+        self.faults = FaultState()
         self.failsafe = FailsafeMonitor(
             datalink_floor_s=datalink_floor_s, offboard_floor_s=offboard_floor_s, manual_floor_s=manual_floor_s
         )
@@ -205,7 +207,7 @@ class Autopilot:
 
     @property
     def position_valid(self) -> bool:
-        return self.est is not None
+        return self.est is not None and self.est.pos_valid
 
     @property
     def mode_name(self) -> str:
@@ -687,6 +689,9 @@ class Autopilot:
         self._auto_disarm(t_s, wall_s)
         self._run_failsafes(est)
         mode = self.mode
+        if not est.pos_valid and self.personality.needs_position(mode):
+            self._descend_outer(est)
+            return
         if mode is FlightMode.MANUAL or mode is FlightMode.STABILIZED:
             self._manual_outer(est)
             return
@@ -735,6 +740,8 @@ class Autopilot:
             altitude_above_home_m=-est.pos_ned_m[2],
             battery_voltage_v=self.battery_voltage_v,
             fence_breach=breach,
+            position_valid=est.pos_valid,
+            needs_position=self.personality.needs_position(self.mode),
         )
         for event in self.failsafe.update(inputs, self.params):
             self._apply_failsafe(event)
@@ -747,6 +754,11 @@ class Autopilot:
             return
         target = _FAILSAFE_MODES.get(event.action)
         if target is None or self.mode is target:
+            return
+        if event.kind is FailsafeKind.POSITION_LOST:
+            # PX4's Descend (reported as AUTO.LAND): entered although the mode needs a position it lacks
+            self._land_xy = None
+            self._enter_mode(target)
             return
         if target is FlightMode.AUTO_LOITER:
             self._reposition = None
@@ -1001,6 +1013,42 @@ class Autopilot:
         self._yaw_rate_ff = yaw_rate
         self._q_sp = _quat_from_euler(roll, pitch, self._yaw_hold)
         self._thrust = thrust
+
+    def _descend_outer(self, est: LocalState) -> None:
+        """PX4's Descend: no horizontal position, so level attitude and a steady descent until landed."""
+        self.last_nav = None
+        self._rate_sp = None
+        if not self.armed or self.crashed or self.landed:
+            self._go_idle(est)
+            self._alt_integral = 0.0
+            return
+        if self._idle:
+            self._idle = False
+            self._rate_ctrl.reset()
+            self._yaw_hold = est.yaw_rad
+            self._alt_integral = 0.0
+        g = self.gains
+        ez = self.settings.land_speed_mps - est.vel_ned_mps[2]
+        limit = 6.0 / max(g.z_vel_i, 1e-6)
+        self._alt_integral = max(-limit, min(limit, self._alt_integral + ez * self.outer_dt_s))
+        az = g.z_vel_p * ez + g.z_vel_i * self._alt_integral
+        self._thrust = min(1.0, max(0.1 * g.hover_thrust, g.hover_thrust * (1.0 - az / GRAVITY_MPS2)))
+        self._yaw_rate_ff = 0.0
+        self._q_sp = _quat_from_euler(0.0, 0.0, self._yaw_hold)
+
+    def inject_failure(self, unit: int, failure_type: int, instance: int) -> MavResult:
+        """MAV_CMD_INJECT_FAILURE: refused unless SYS_FAILURE_EN is 1 (PX4); see :mod:`sitl.core.faults`."""
+        if self.personality.is_ardupilot:
+            return MavResult.UNSUPPORTED
+        if not self.params.settings.failure_injection_enabled:  # the table, not the per-step copy
+            self.say(MavSeverity.WARNING, "Failure injection denied: SYS_FAILURE_EN is 0")
+            return MavResult.DENIED
+        result = self.faults.inject(unit, failure_type, instance)
+        if result.outcome is InjectOutcome.ACCEPTED:
+            self.say(MavSeverity.CRITICAL, result.text)
+            return MavResult.ACCEPTED
+        self.say(MavSeverity.WARNING, result.text)
+        return MavResult.UNSUPPORTED if result.outcome is InjectOutcome.UNSUPPORTED else MavResult.DENIED
 
     def _altctl_outer(self, est: LocalState) -> None:
         """ALT_HOLD (ArduCopter) / ALTCTL: sticks tilt the vehicle; throttle is a climb rate (centred holds)."""

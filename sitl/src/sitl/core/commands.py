@@ -142,6 +142,11 @@ def handle_command(req: CommandRequest, ap: Autopilot, streams: StreamScheduler,
         if p1 != 1.0:
             return CommandOutcome(MavResult.ACCEPTED)
         return CommandOutcome(MavResult.ACCEPTED, send=(MsgId.AUTOPILOT_VERSION,))
+    if cmd == MavCmd.INJECT_FAILURE:
+        unit, ftype, instance = _as_int(p1, 0, 255), _as_int(p2, 0, 255), _as_int(p3, 0, 255)
+        if unit is None or ftype is None or instance is None:
+            return CommandOutcome(MavResult.DENIED)
+        return CommandOutcome(ap.inject_failure(unit, ftype, instance))
     if cmd == MavCmd.GET_HOME_POSITION:
         return CommandOutcome(MavResult.ACCEPTED, send=(MsgId.HOME_POSITION,))
     if cmd == MavCmd.SET_MESSAGE_INTERVAL:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sitl.core.faults import NO_AID_TIMEOUT_S
 from sitl.core.state import LocalState, VehicleState
 from uav_common.geo import GeoPoint, LocalProjection
 
@@ -56,20 +57,42 @@ class Estimator:
         self._drift_error = [0.0, 0.0]
         self._last_t: float | None = None
         self.dropouts = 0
+        #: An injected GPS failure (MAV_CMD_INJECT_FAILURE): set by the vehicle before each update.
+        self.gps_failed = False
+        self._gps_failed_since: float | None = None
+        self._dead_reckoned: tuple[float, float] | None = None
 
     @property
     def gps_ok(self) -> bool:
+        if self.gps_failed:
+            return False
         return self._last_t is None or self._last_t >= self._dropout_until
+
+    def _without_gps(self, t_s: float, est: LocalState, dt: float) -> LocalState:
+        """An injected GPS failure: no fix; the horizontal position is dead-reckoned on the velocity
+        estimate from where the last fix left it, and invalid after :data:`NO_AID_TIMEOUT_S` (PX4's EKF2)."""
+        if self._gps_failed_since is None or self._dead_reckoned is None:
+            self._gps_failed_since = t_s
+            self._dead_reckoned = (est.pos_ned_m[0], est.pos_ned_m[1])
+        else:
+            vn, ve, _ = est.vel_ned_mps
+            self._dead_reckoned = (self._dead_reckoned[0] + vn * dt, self._dead_reckoned[1] + ve * dt)
+        pos = (self._dead_reckoned[0], self._dead_reckoned[1], est.pos_ned_m[2])
+        valid = t_s - self._gps_failed_since < NO_AID_TIMEOUT_S
+        return LocalState(est.full, pos, False, valid)
 
     def update(self, truth: VehicleState, truth_ned_m: tuple[float, float, float] | None = None) -> LocalState:
         """The estimate for ``truth``; ``truth_ned_m`` is its LOCAL_NED position if already known."""
         if truth_ned_m is None:
             truth_ned_m = self.projection.to_ned(GeoPoint(truth.lat_deg, truth.lon_deg, truth.alt_amsl_m))
         n, e, d = truth_ned_m
+        dt = 0.0 if self._last_t is None else max(0.0, truth.t_s - self._last_t)
         if self.noise is None:
             self._last_t = truth.t_s
+            if self.gps_failed:
+                return self._without_gps(truth.t_s, LocalState(truth, (n, e, d), False), dt)
+            self._gps_failed_since = None
             return LocalState(truth, (n, e, d), True)
-        dt = 0.0 if self._last_t is None else max(0.0, truth.t_s - self._last_t)
         self._last_t = truth.t_s
         nm = self.noise
         self._step_noise(dt, nm)
@@ -99,6 +122,9 @@ class Estimator:
             height_above_ground_m=truth.height_above_ground_m,
             gravity_mps2=truth.gravity_mps2,
         )
+        if self.gps_failed:
+            return self._without_gps(truth.t_s, LocalState(est, pos, False), dt)
+        self._gps_failed_since = None
         return LocalState(est, pos, self.gps_ok)
 
     def _step_noise(self, dt: float, nm: NoiseModel) -> None:

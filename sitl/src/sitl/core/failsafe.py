@@ -47,6 +47,7 @@ class FailsafeKind(enum.Enum):
     OFFBOARD_LOST = "offboard_lost"
     MANUAL_CONTROL_LOST = "manual_control_lost"
     GEOFENCE = "geofence"
+    POSITION_LOST = "position_lost"
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,10 @@ class FailsafeInputs:
     battery_voltage_v: float = math.nan
     fence_breach: str | None = None
     """What an uploaded fence zone says is breached (None: inside, or no uploaded fence)."""
+    position_valid: bool = True
+    """The estimator still has a horizontal position (false after a GPS failure outlasts EKF2_NOAID_TOUT)."""
+    needs_position: bool = False
+    """The present mode flies on the position estimate."""
 
 
 class FailsafeMonitor:
@@ -200,7 +205,38 @@ class FailsafeMonitor:
         else:
             self._active.discard(FailsafeKind.MANUAL_CONTROL_LOST)
         self._geofence(x, s, events)
+        self._position(x, events)
         return events
+
+    def _position(self, x: FailsafeInputs, events: list[FailsafeEvent]) -> None:
+        """PX4's position-estimate failsafe: without RC (none here), a position mode descends (Descend)."""
+        if x.position_valid:
+            if FailsafeKind.POSITION_LOST in self._active:
+                self._active.discard(FailsafeKind.POSITION_LOST)
+                events.append(
+                    FailsafeEvent(
+                        FailsafeKind.POSITION_LOST, Action.WARN, MavSeverity.INFO, "Position estimate regained"
+                    )
+                )
+            return
+        if FailsafeKind.POSITION_LOST in self._active:
+            return
+        self._active.add(FailsafeKind.POSITION_LOST)
+        if x.armed and x.in_air and x.needs_position:
+            events.append(
+                FailsafeEvent(
+                    FailsafeKind.POSITION_LOST,
+                    Action.LAND,
+                    MavSeverity.CRITICAL,
+                    "Failsafe: no local position estimate (GPS lost): descending",
+                )
+            )
+        else:
+            events.append(
+                FailsafeEvent(
+                    FailsafeKind.POSITION_LOST, Action.WARN, MavSeverity.WARNING, "No local position estimate"
+                )
+            )
 
     def _voltage_low(self, x: FailsafeInputs, s: FlightSettings, *, critical: bool) -> bool:
         """ArduCopter's voltage trigger: below the threshold for ``BATT_LOW_TIMER`` (0 V: off)."""

@@ -109,6 +109,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     _i("NAV_DLL_ACT", 0, 0, 3, "Data link loss action: 0 off, 1 hold, 2 return, 3 land", (0, 1, 2, 3)),
     _i("NAV_RCL_ACT", 2, 0, 3, "Manual control loss action: 0 off (hold), 1 hold, 2 return, 3 land", (0, 1, 2, 3)),
     _i("SYS_AUTOSTART", 4001, 0, 9999999, "Airframe (4001: generic quadcopter; read-only)", ro=True),
+    _i("SYS_FAILURE_EN", 0, 0, 1, "Failure injection (MAV_CMD_INJECT_FAILURE): 0 refused, 1 allowed", (0, 1)),
     # Navigator: mission, takeoff, RTL
     _f("MIS_TAKEOFF_ALT", 2.5, 0.5, 200.0, "m", "Takeoff altitude above home (NaN takeoff altitude)"),
     _f("NAV_ACC_RAD", 2.0, 0.05, 200.0, "m", "Default horizontal waypoint acceptance radius"),
@@ -404,6 +405,7 @@ def px4_settings(p: ParamTable) -> FlightSettings:
         guided_takeoff_required=False,
         guided_timeout_s=math.nan,
         orbit_radius_max_m=p["MC_ORBIT_RAD_MAX"],
+        failure_injection_enabled=int(p["SYS_FAILURE_EN"]) == 1,
         follow_height_m=p["FLW_TGT_HT"],
         follow_distance_m=p["FLW_TGT_DST"],
         follow_angle_rad=math.radians(p["FLW_TGT_FA"]),

@@ -136,6 +136,9 @@ class FlightSettings:
     follow_responsiveness: float
     follow_altitude_mode: int
     follow_max_speed_mps: float
+    # ------------------------------------------------------------ failure injection (PX4)
+    failure_injection_enabled: bool = False
+    """PX4 ``SYS_FAILURE_EN``: MAV_CMD_INJECT_FAILURE is accepted (ArduCopter has no such command)."""
 
     @property
     def has_fence(self) -> bool:

@@ -37,6 +37,8 @@ class LocalState:
     full: VehicleState
     pos_ned_m: tuple[float, float, float]
     gps_ok: bool = True
+    pos_valid: bool = True
+    """False once the horizontal position is no longer aided (GPS failure longer than EKF2_NOAID_TOUT)."""
 
     @property
     def vel_ned_mps(self) -> tuple[float, float, float]:

@@ -158,6 +158,8 @@ class Encoder:
 
     def local_position_ned(self) -> Any:
         e = self.v.est
+        if not e.pos_valid:
+            return None  # PX4 sends LOCAL_POSITION_NED only while the position is valid
         return self.fast.local_position_ned(self.time_boot_ms, *e.pos_ned_m, *e.vel_ned_mps)
 
     def altitude(self) -> Any:
@@ -264,6 +266,8 @@ class Encoder:
 
     def global_position_int(self) -> Any:
         e = self.v.est
+        if not e.pos_valid:
+            return None
         s = e.full
         vn, ve, vd = e.vel_ned_mps
         return self.fast.global_position_int(
@@ -344,6 +348,8 @@ class Encoder:
             s = v.truth()
             pos = v.pos_ned_truth_m
         else:
+            if not v.est.pos_valid:
+                return None  # PX4 publishes no odometry without a local position
             s = v.est.full
             pos = v.est.pos_ned_m
         w, x, y, z = s.q_wxyz

@@ -430,8 +430,7 @@ class LinkSpec:
 
 @dataclass(frozen=True)
 class WindSpec:
-    """Mean wind and turbulence (issue 23 part B: the SITL does not simulate them yet; a scenario with
-    ``wind`` is refused with that reason)."""
+    """Mean wind and turbulence, flown by the SITL (its ``wind.*`` settings, docs/sitl.md "Wind and turbulence")."""
 
     #: Mean wind speed at ``reference_height_m``.
     speed_mps: float = 0.0
@@ -661,9 +660,10 @@ class Scenario:
     pose_source: PoseSource = PoseSource.GROUND_TRUTH
     #: Lossy MAVLink links through the router.
     link: LinkSpec = field(default_factory=LinkSpec)
-    #: Mean wind and turbulence (not yet simulated: refused).
+    #: Mean wind and turbulence (passed to the SITL as its ``wind.*`` settings).
     wind: WindSpec | None = None
-    #: Faults injected in flight (not yet simulated: refused).
+    #: Faults injected in flight (the SITL injects them; scripting them in a scenario is refused until the
+    #: mission manager sends them).
     faults: tuple[FaultSpec, ...] = ()
     #: Stress presets to lay over this scenario when it is loaded (names of config/stress/*.yaml or paths).
     stress: tuple[str, ...] = ()
@@ -708,12 +708,12 @@ class Scenario:
                     f"there; it cannot have motion {motion}"
                 )
                 raise ValueError(msg)
-        not_yet = "is not yet simulated by the SITL (issue 23, part B, lands after the SITL rework)"
-        if self.wind is not None:
-            msg = f"wind: wind and turbulence {not_yet}; remove the key (or the stress preset that sets it)"
-            raise ValueError(msg)
         if self.faults:
-            msg = f"faults: in-flight fault injection {not_yet}; remove the key (or the stress preset that sets it)"
+            msg = (
+                "faults: scripted in-flight faults are not yet run by the mission manager (issue 23, part B: the"
+                " SITL takes MAV_CMD_INJECT_FAILURE, docs/sitl.md 'Failure injection'); remove the key (or the"
+                " stress preset that sets it), or inject them with MAVSDK's failure plugin"
+            )
             raise ValueError(msg)
 
     @property

@@ -96,6 +96,7 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
     * ``time.unix_epoch_s = 0`` (SYSTEM_TIME does not depend on the wall clock);
     * the scenario's autopilot personality (``--autopilot``);
     * lockstep, or the scenario's speed factor;
+    * the scenario's ``wind`` as the SITL's ``wind.*`` settings;
     * ``node_params.sitl`` as ``--set`` overrides (any ``config/sitl.yaml`` key, e.g.
       ``failsafe.geofence_max_altitude_m``).
     """
@@ -121,6 +122,17 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
         argv += ["--lockstep", "--set", f"time.stream_wall_floor_s={LOCKSTEP_WALL_FLOOR_S:g}"]
     else:
         argv += ["--speed-factor", f"{scenario.time.speed_factor:g}"]
+    if scenario.wind is not None:
+        w = scenario.wind
+        for key, value in (
+            ("speed_mps", w.speed_mps),
+            ("from_deg", w.from_deg),
+            ("reference_height_m", w.reference_height_m),
+            ("shear_exponent", w.shear_exponent),
+            ("turbulence", w.turbulence),
+            ("seed", w.seed),
+        ):
+            argv += ["--set", f"wind.{key}={_yaml_scalar(value)}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
         argv += ["--set", f"{key}={yaml_scalar(value)}"]
     return argv
