@@ -23,6 +23,9 @@ Results (``bench/results/latest.jsonl``):
   by losing map data would show here); baseline: the lawnmower's.
 * ``scenario.loiter.cpu_s_per_sim_s``: CPU seconds of all the run's processes per simulated second
   (sampled from /proc; the notes break it down per node); on 2 cores 3x real time needs <= 0.67.
+* ``scenario.loiter.rtf_moving_objects``: the loiter as shipped (walkers and drivers in the default world) against
+  the same loiter with nobody moving (``actors: {people: {moving: 0}, vehicles: {moving: 0}}``), same run; target:
+  a drop of no more than 10 %. ``--skip-static`` leaves it out.
 * ``scenario.loiter.rtf_nadir_10hz``: the same loiter with the nadir (mapping) camera at 10 Hz, its default
   until stop 17 (config/sim_bridge.yaml says why it is 5 Hz now); baseline: the default loiter's. Its notes
   give the frames the map server dropped and the CPU per simulated second. ``--skip-nadir-10hz`` leaves it out.
@@ -242,6 +245,7 @@ def main() -> int:
     p.add_argument("--repeats", type=int, default=2, help="runs of each scenario (figures are their means)")
     p.add_argument("--keep", type=Path, help="keep the run folders here (default: a temporary folder)")
     p.add_argument("--skip-nadir-10hz", action="store_true", help="no runs with the nadir camera at 10 Hz")
+    p.add_argument("--skip-static", action="store_true", help="no runs of the loiter without moving objects")
     p.add_argument(
         "--skip-autopilot-lossy", action="store_true", help="no runs on the autopilot's estimate over the lossy link"
     )
@@ -253,9 +257,11 @@ def main() -> int:
         sys.stderr.write("bench_scenario: --repeats must be >= 1\n")
         return 2
     parent = args.keep or Path(tempfile.mkdtemp(prefix="bench_scenario_"))
-    loiter, mower, nadir10, lossy = Runs(), Runs(), Runs(), Runs()
+    loiter, mower, nadir10, static, lossy = Runs(), Runs(), Runs(), Runs(), Runs()
     variants = [(loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")]
     parent.mkdir(parents=True, exist_ok=True)
+    if not args.skip_static:
+        variants.append((static, static_world_scenario(parent / "loiter_static.yaml"), "loiter_static"))
     if not args.skip_nadir_10hz:
         variants.append((nadir10, nadir_10hz_scenario(parent / "loiter_nadir_10hz.yaml"), "loiter_nadir_10hz"))
     if not args.skip_autopilot_lossy:
@@ -340,6 +346,26 @@ def main() -> int:
             f"cpu-s/sim-s (default {cpu:.3f}); coverage efficiency {nadir10.coverage('efficiency'):.2f} (default "
             f"{loiter.coverage('efficiency'):.2f}); machine probe {nadir10.probe_notes()}",
         )
+    if static.metrics:
+        drop = 1.0 - rtf / static.rtf() if static.rtf() else float("nan")
+        record(
+            "scenario.loiter.rtf_moving_objects",
+            rtf,
+            "x",
+            static.rtf(),
+            target="ratio >= 0.9",
+            met=rtf >= 0.9 * static.rtf(),
+            notes=f"the loiter as shipped (the default world's 8 walkers and 5 drivers, posed from simulation time, "
+            f"published on /sim/object_states, scored for the map's clearing) against the same loiter with nobody "
+            f"moving (actors: people.moving 0, vehicles.moving 0), same run: real-time factor "
+            f"{rtf:.2f}x vs {static.rtf():.2f}x ({100 * drop:+.1f} % drop; static runs {static.rtfs()}); CPU "
+            f"{cpu:.3f} vs {static.cpu_per_sim_s():.3f} cpu-s/sim-s; map server dropped {loiter.dropped_pct():.1f} % "
+            f"vs {static.dropped_pct():.1f} % of its frames; per node (moving vs static): "
+            + ", ".join(
+                f"{k} {v:.3f}/{static.per_node().get(k, 0.0):.3f}" for k, v in loiter.per_node().items() if v >= 0.005
+            )
+            + f"; machine probe {static.probe_notes()}",
+        )
     if lossy.metrics:
         ratio = lossy.rtf() / rtf
         pose = [m["pose_estimate"]["error"] for m in lossy.metrics]
@@ -361,6 +387,17 @@ def main() -> int:
             f"{lossy.per_node().get('autopilot_odometry', 0.0):.3f}; machine probe {lossy.probe_notes()}",
         )
     return 0
+
+
+def static_world_scenario(path: Path) -> Path:
+    """config/scenarios/loiter.yaml with nobody walking or driving (``actors``), written to ``path``."""
+    scenario = yaml.safe_load(LOITER.read_text())
+    world = scenario.get("world") or {}
+    if "config" in world:
+        world["config"] = str((LOITER.parent / world["config"]).resolve())
+    scenario["actors"] = {"people": {"moving": 0}, "vehicles": {"moving": 0}}
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return path
 
 
 def autopilot_lossy_scenario(path: Path) -> Path:

@@ -223,6 +223,28 @@ class BagKit:
             stop_reason=stop_reason,
         )
 
+    def object_states(self, t: float, objects: list[tuple[int, str, float, float, float]]) -> Any:
+        """``(instance_id, name, x, y, yaw)`` of moving objects (people 0.5 x 0.5 x 1.7 m, vehicles 4.5 x 1.8 x 1.5)."""
+        out = []
+        for iid, name, x, y, yaw in objects:
+            person = name.startswith("person")
+            size = (0.5, 0.5, 1.7) if person else (4.5, 1.8, 1.5)
+            q = self.T("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+            pose = self.T("geometry_msgs/msg/Pose")(position=self.point(x, y, 0.0), orientation=q)
+            out.append(
+                self.T("uav_msgs/msg/ObjectState")(
+                    instance_id=iid,
+                    name=name,
+                    class_name="person" if person else "vehicle",
+                    kind="walking" if person else "car",
+                    pose=pose,
+                    size=self.T("geometry_msgs/msg/Vector3")(x=size[0], y=size[1], z=size[2]),
+                    velocity=self.T("geometry_msgs/msg/Vector3")(x=1.0, y=0.0, z=0.0),
+                    moving=True,
+                )
+            )
+        return self.T("uav_msgs/msg/ObjectStateArray")(header=self.header(t), objects=out)
+
     def metrics(self, t: float, values: dict[str, float], summary: dict[str, Any] | None = None) -> Any:
         fields = {
             "mapped_pct": 0.0,

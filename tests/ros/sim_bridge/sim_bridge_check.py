@@ -37,7 +37,7 @@ from fake_sitl_peer import HOME, FakeSitl, hover_east  # noqa: E402
 
 from uav_common.geo import LocalProjection  # noqa: E402
 from uav_common.ros.arrays import cloud_to_xyzrgb, image_to_array  # noqa: E402
-from uav_msgs.msg import Collision, DetectionArray, SimState  # noqa: E402
+from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState  # noqa: E402
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest  # noqa: E402
 from uav_sim_bridge.core.world_config import ObjectClass, load_world_config  # noqa: E402
 from uav_sim_bridge.shell.world_store import load_or_generate  # noqa: E402
@@ -123,6 +123,7 @@ class SimBridgeCheck(unittest.TestCase):
             "/uav/sim_state": SimState,
             "/detections/ground_truth": DetectionArray,
             "/sim/collision": Collision,
+            "/sim/object_states": ObjectStateArray,
         }
         for cam in ("nadir", "forward"):
             ns = f"/cameras/{cam}"
@@ -295,6 +296,27 @@ class SimBridgeCheck(unittest.TestCase):
             self.sitl.send_raw(junk)
         self.inbox.wait("/uav/sim_state", before + 20, timeout_s=20.0)
         self.assertTrue(self.bridge.alive(), self.bridge.tail())
+
+    def test_8_moving_objects_publish_their_ground_truth(self) -> None:
+        first = self.inbox.wait("/sim/object_states", 1)
+        n = self.inbox.count["/sim/object_states"]
+        last = self.inbox.wait("/sim/object_states", n + 3)
+        moving = [o for o in last.objects if o.moving]  # type: ignore[attr-defined]
+        self.assertEqual(len(moving), 3, [(o.name, o.moving) for o in last.objects])  # type: ignore[attr-defined]
+        self.assertEqual(last.header.frame_id, "map")  # type: ignore[attr-defined]
+        dt = (last.header.stamp - first.header.stamp).to_sec()  # type: ignore[attr-defined]
+        self.assertGreater(dt, 0.0)
+        before = {o.instance_id: o for o in first.objects}  # type: ignore[attr-defined]
+        for o in moving:
+            self.assertIn(o.class_name, ("person", "vehicle"))
+            self.assertIn(o.kind, ("walking", "car", "van", "truck"))
+            self.assertGreater(o.size.z, 0.3)
+            speed = math.hypot(o.velocity.x, o.velocity.y)
+            moved = math.hypot(o.pose.position.x - before[o.instance_id].pose.position.x,
+                               o.pose.position.y - before[o.instance_id].pose.position.y)  # fmt: skip
+            # it moved as far as its speed says (paths turn: a little less, never more)
+            self.assertLessEqual(moved, speed * dt + 0.05)
+            self.assertGreater(moved, 0.5 * speed * dt)
 
     def _wait_detection(self, iid: int, camera: str, start: int, *, present: bool) -> DetectionArray:
         deadline = time.monotonic() + 30.0

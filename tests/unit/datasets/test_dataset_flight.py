@@ -38,9 +38,11 @@ RATE = 50.0  # states per second
 DURATION_S = 6.0
 SPEED = 8.0
 AGL = 20.0
+# 320 x 240: the articulated person (0.3 m across the shoulders) is under a pixel wide at 160 x 120 from 40 m,
+# and its few pixels come and go from frame to frame
 FORWARD = {
-    "width": 160,
-    "height": 120,
+    "width": 320,
+    "height": 240,
     "hfov_deg": 90.0,
     "rate_hz": 10.0,
 }

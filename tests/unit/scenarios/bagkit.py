@@ -102,6 +102,9 @@ def write_synthetic_run(path: Path, *, duration_s: float = 60.0, with_snapshots:
             kit.write("/scenario/status", t, kit.status(t, "SEARCHING" if rel > 10 else "TAKEOFF", found=rel > 50))
         kit.write("/uav/ground_truth/odom", t, kit.odom(t, 0.0, y, z))
         scorer.add_pose(PoseSample(t, (0.0, y, z)))
+        if k % 2 == 0:
+            movers = [(7, "person_0003", 20.0 + 1.2 * rel, -30.0, 0.0), (9, "vehicle_0001", -50.0, 8.0 * rel, 1.57)]
+            kit.write("/sim/object_states", t, kit.object_states(t, movers))
         if k % 10 == 0:
             kit.write("/uav/battery", t, kit.battery(t, 100.0 - 0.2 * rel, 16.8 - 0.01 * rel))
             kit.write("/autonomy/goal_reason", t, kit.goal_reason(t, 0.0, y - 50.0))
@@ -112,6 +115,15 @@ def write_synthetic_run(path: Path, *, duration_s: float = 60.0, with_snapshots:
                 "flight": {"distance_m": 4.0 * rel, "altitude_floor_m": 10.0},
                 "detection": {"person_first_in_view": {"t_s": 40.0}, "person_first_detected": {"t_s": 40.0}},
                 "events": [{"t_s": 40.0, "what": "person in view"}],
+                "moving_objects": {
+                    "movers": 2,
+                    "distance_m": 5.0 * rel,
+                    "mapped_voxels": 10.0 * rel,
+                    "seen_again_voxels": 8.0 * rel,
+                    "ghost_voxels": 2.0 * rel,
+                    "cleared_voxels": 6.0 * rel,
+                    "cleared_fraction": 0.75,
+                },
             }
             kit.write(
                 "/scenario/metrics",

@@ -44,8 +44,9 @@ def small_renderer(small_world: World) -> Iterator[Renderer]:
 
 @pytest.fixture(scope="session")
 def flat_world_with_people() -> Iterator[tuple[World, Renderer]]:
-    """A flat empty world with a few people to move around, and its renderer."""
-    world = generate_world(flat_config(people=PeopleConfig(count=3)))
+    """A flat empty world with a few standing people of one height to move around, and its renderer."""
+    people = PeopleConfig(count=3, poses={"standing": 1.0}, height_m=(1.75, 1.75))
+    world = generate_world(flat_config(people=people))
     r = Renderer(world)
     yield world, r
     r.close()

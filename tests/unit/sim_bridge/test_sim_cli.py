@@ -11,7 +11,10 @@ import pytest
 from PIL import Image
 from sim_worlds import REPO
 
+from uav_sim_bridge.cli.contact_sheet import contact_sheet
 from uav_sim_bridge.cli.world import main
+from uav_sim_bridge.core.world_config import load_world_config
+from uav_sim_bridge.shell.world_store import load_or_generate
 
 SMALL = """name: cli
 seed: 2
@@ -75,3 +78,25 @@ def test_bin_wrapper_runs(world_yaml: Path, tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert len(proc.stdout.strip()) == 64
+
+
+def test_render_in_an_environment_and_the_contact_sheet(
+    world_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cache = ["--cache-dir", str(tmp_path / "cache")]
+    args = ["render", str(world_yaml), "--alt", "30", "--camera", "forward", *cache]
+    assert main([*args, "--out", str(tmp_path / "clean")]) == 0
+    assert main([*args, "--environment", "dusk_noise", "--out", str(tmp_path / "dusk")]) == 0
+    clean = np.asarray(Image.open(next((tmp_path / "clean").glob("*_color.png"))), dtype=float)
+    dusk = np.asarray(Image.open(next((tmp_path / "dusk").glob("*_color.png"))), dtype=float)
+    assert np.abs(clean - dusk).mean() > 5.0  # twilight, gain and noise: another image of the same view
+    capsys.readouterr()
+    assert main([*args, "--environment", "sunny", "--out", str(tmp_path / "x")]) == 2
+    assert "unknown environment preset 'sunny'" in capsys.readouterr().err
+    # the contact sheet: a view per preset above, close-ups of each pose and vehicle below
+    world = load_or_generate(load_world_config(world_yaml), tmp_path / "cache")
+    sheet = contact_sheet(world, tmp_path / "sheet.png", presets=["clean", "low_sun"])
+    img = np.asarray(Image.open(sheet))
+    assert img.shape[1] >= 2 * 480
+    assert img.shape[0] > 360 + 4 * 192
+    assert img.std() > 20.0

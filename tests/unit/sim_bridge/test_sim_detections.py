@@ -85,26 +85,38 @@ def test_person_walks_out_of_range(scene: tuple[World, Renderer]) -> None:
 
 def test_occlusion_and_visible_fraction(scene: tuple[World, Renderer]) -> None:
     world, renderer = scene
-    near, far = world.objects_of_class(ObjectClass.PERSON)[:2]
+    # the widest person in front, the slimmest behind (same height), both facing the camera: the one behind is
+    # hidden
+    people = sorted(world.objects_of_class(ObjectClass.PERSON), key=lambda o: o.shape[1])
+    near, far = people[-1], people[0]
     cam = CameraModel.simple(320, 240, 40.0)
     pose = look_at([0.0, -20.0, 0.9], [0.0, 0.0, 0.9])  # eye level, looking north
 
     def place(x_far: float) -> list:
         objs = {
             near.instance_id: WorldObject(
-                near.instance_id, near.object_class, near.name, ObjectPose((0.0, 0.0, 0.0)), near.size_m
+                near.instance_id,
+                near.object_class,
+                near.name,
+                ObjectPose((0.0, 0.0, 0.0), -math.pi / 2),
+                near.size_m,
             ),
             far.instance_id: WorldObject(
-                far.instance_id, far.object_class, far.name, ObjectPose((x_far, 4.0, 0.0)), far.size_m
+                far.instance_id,
+                far.object_class,
+                far.name,
+                ObjectPose((x_far, 4.0, 0.0), -math.pi / 2),
+                far.size_m,
             ),
         }
         for o in objs.values():
             renderer.set_object_pose(o.instance_id, o.pose)
         return _detect(renderer, cam, pose, objs)[0]
 
-    dets = {d.instance_id: d for d in place(0.0)}  # the far person fully behind the near one
+    dets = {d.instance_id: d for d in place(0.0)}  # the far person right behind the near one
     assert dets[near.instance_id].visible_fraction == pytest.approx(1.0)
-    assert far.instance_id not in dets
+    # an articulated figure has gaps (between the legs, under the arms): at most a sliver shows through them
+    assert far.instance_id not in dets or dets[far.instance_id].visible_fraction < 0.15
     dets = {d.instance_id: d for d in place(0.25)}  # half hidden
     assert 0.1 < dets[far.instance_id].visible_fraction < 0.9
     dets = {d.instance_id: d for d in place(3.0)}  # side by side
@@ -144,7 +156,7 @@ def test_unoccluded_pixels_count_each_pixel_once(scene: tuple[World, Renderer]) 
     for eye in ([0.0, 0.0, 15.0], [0.0, -10.0, 8.0], [3.0, -6.0, 2.0], [5.0, 5.0, 30.0], [0.0, -20.0, 1.0]):
         pose = look_at(eye, [0.0, 0.0, 0.8])
         visible = int((renderer.render(cam, pose).instance_id == person.instance_id).sum())
-        assert visible > 20
+        assert visible > 10  # in view (the articulated figure, ~0.3 m across, covers ~19 px from 30 m up)
         assert renderer.unoccluded_pixel_counts(cam, pose, [person.instance_id]) == {person.instance_id: visible}
 
 

@@ -8,16 +8,19 @@ deep-merges the ``~overrides`` parameter and a few convenience parameters (``~wo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import from_mapping, to_mapping
+from uav_common.config import ConfigError, from_mapping, load_yaml_mapping, to_mapping
 from uav_common.paths import config_dir
 from uav_common.robot import RobotDescription
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
 from uav_sim_bridge.core.collision import CollisionConfig
 from uav_sim_bridge.core.detections import DetectionConfig
+from uav_sim_bridge.core.environment import EnvironmentConfig, merge_environment
+from uav_sim_bridge.core.motion import ActorsConfig
 from uav_sim_bridge.core.render_settings import RenderSettings
 from uav_sim_bridge.core.schedule import LockstepConfig
 from uav_sim_bridge.core.sensor_noise import NoiseConfig
@@ -31,7 +34,11 @@ __all__ = [
     "SimLinkConfig",
     "bridge_config",
     "default_cameras",
+    "environment_preset_path",
+    "environment_presets",
+    "load_environment_preset",
     "mounted_cameras",
+    "resolve_environment",
     "resolve_world_path",
 ]
 
@@ -90,6 +97,8 @@ class PublishConfig:
     #: rospy writes every connection from its own thread; a recorder whose writer thread waits for the GIL
     #: while a frame renders needs room for a few frames, or the bag silently lacks some.
     queue_size: int = 10
+    #: ``/sim/object_states`` (moving and moved people and vehicles) per simulated second.
+    object_states_rate_hz: float = 5.0
 
     def __post_init__(self) -> None:
         if self.points_stride < 1:
@@ -97,6 +106,9 @@ class PublishConfig:
             raise ValueError(msg)
         if self.queue_size < 1:
             msg = "queue_size must be >= 1"
+            raise ValueError(msg)
+        if not self.object_states_rate_hz > 0:
+            msg = "object_states_rate_hz must be > 0"
             raise ValueError(msg)
 
 
@@ -135,6 +147,10 @@ class SimBridgeConfig:
     detections: GroundTruthDetectionsConfig = field(default_factory=GroundTruthDetectionsConfig)
     collision: CollisionConfig = field(default_factory=CollisionConfig)
     publish: PublishConfig = field(default_factory=PublishConfig)
+    #: Light, weather, camera effects and depth noise (a preset plus free values: :func:`resolve_environment`).
+    environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
+    #: Who moves and how, over the world's own ``people``/``vehicles`` motion keys.
+    actors: ActorsConfig = field(default_factory=ActorsConfig)
     home: HomeConfig | None = None
     map_frame: str = "map"
     base_frame: str = "base_link"
@@ -147,6 +163,13 @@ class SimBridgeConfig:
         unknown = [c for c in self.detections.cameras if c not in self.cameras]
         if unknown:
             msg = f"detections.cameras names unknown camera(s) {unknown}; cameras: {sorted(self.cameras)}"
+            raise ValueError(msg)
+        unknown = sorted(set(self.environment.cameras) - set(self.cameras) - {"default"})
+        if unknown:
+            msg = (
+                f"environment.cameras names unknown camera(s) {unknown}; cameras: {sorted(self.cameras)} "
+                "(or default, for all of them)"
+            )
             raise ValueError(msg)
 
     def world_yaml(self) -> Path:
@@ -175,6 +198,61 @@ def resolve_world_path(world: str, worlds_dir: Path | None = None) -> Path:
         inside = Path(*path.parts[1:]) if path.parts[:1] == ("config",) else path
         return base / inside if (base / inside).exists() else path
     return (worlds_dir or config_dir() / "worlds") / f"{world}.yaml"
+
+
+def environment_presets(presets_dir: Path | None = None) -> list[str]:
+    """The names of the environment presets (``config/environments/*.yaml``)."""
+    folder = presets_dir or config_dir() / "environments"
+    return sorted(p.stem for p in folder.glob("*.yaml"))
+
+
+def environment_preset_path(name: str, presets_dir: Path | None = None) -> Path:
+    """A preset name (``haze`` -> ``config/environments/haze.yaml``) or a path to a YAML file."""
+    if name.endswith((".yaml", ".yml")) or "/" in name:
+        return Path(name).expanduser()
+    return (presets_dir or config_dir() / "environments") / f"{name}.yaml"
+
+
+def load_environment_preset(name: str, presets_dir: Path | None = None) -> dict[str, Any]:
+    """The mapping of an environment preset.
+
+    Raises:
+        ConfigError: no such preset (the message lists the known ones) or an unreadable file.
+    """
+    path = environment_preset_path(name, presets_dir)
+    if not path.is_file():
+        folder = presets_dir or config_dir() / "environments"
+        known = ", ".join(environment_presets(folder)) or "none"
+        msg = f"unknown environment preset {name!r}: {path} does not exist (presets: {known})"
+        raise ConfigError(msg)
+    data = load_yaml_mapping(path)
+    if "preset" in data:
+        msg = f"{path}: a preset cannot name another preset ('preset' key)"
+        raise ConfigError(msg)
+    return data
+
+
+def resolve_environment(raw: Mapping[str, Any] | str | None, presets_dir: Path | None = None) -> dict[str, Any]:
+    """An ``environment:`` mapping (or its YAML text) with its preset loaded and its free values merged over it
+    (still a mapping: :func:`uav_common.config.from_mapping` validates it as :class:`EnvironmentConfig`).
+
+    Raises:
+        ConfigError: unknown preset, or ``environment`` is not a mapping.
+    """
+    if raw is None:
+        raw = {}
+    if isinstance(raw, str):  # YAML text: what a ROS parameter carries when the mapping has nulls
+        import yaml  # noqa: PLC0415
+
+        try:
+            raw = yaml.safe_load(raw) or {}
+        except yaml.YAMLError as err:
+            msg = f"environment: not valid YAML: {err}"
+            raise ConfigError(msg) from err
+    if not isinstance(raw, Mapping):
+        msg = f"environment must be a mapping (preset: NAME plus keys), got {raw!r}"
+        raise ConfigError(msg)
+    return merge_environment(raw, lambda name: load_environment_preset(name, presets_dir))
 
 
 def mounted_cameras(cameras: Any, robot: RobotDescription, *, source: str) -> dict[str, Any]:
@@ -211,12 +289,13 @@ def mounted_cameras(cameras: Any, robot: RobotDescription, *, source: str) -> di
 def bridge_config(data: dict[str, Any], robot: RobotDescription, *, source: str) -> SimBridgeConfig:
     """The bridge's configuration from its merged settings (``config/sim_bridge.yaml`` with any overrides) and the
     robot description that places its cameras: what the node runs with, and what anything re-creating a run's
-    cameras (the data engine) must use.
+    cameras (the data engine) must use. The ``environment`` preset is resolved here too (:func:`resolve_environment`).
 
     Raises:
         SimBridgeConfigError: a camera sets ``mount`` or has none in the robot description.
-        ConfigError: an unknown key or a wrong value (named with ``source``).
+        ConfigError: an unknown key or a wrong value (named with ``source``), an unknown environment preset.
     """
     merged = dict(data)
     merged["cameras"] = mounted_cameras(merged.get("cameras"), robot, source=source)
+    merged["environment"] = resolve_environment(merged.get("environment"))  # its preset loaded, free values over it
     return from_mapping(SimBridgeConfig, merged, source=source)

@@ -2,10 +2,22 @@
 
 :class:`BridgeEngine` takes a :class:`~uav_sim_bridge.core.vehicle_state.VehicleState`
 and returns a :class:`StepOutput`: the pose to publish (exact, or degraded by the
-seeded pose noise), the camera frames that are due in simulation time (rendered,
-depth degraded if configured, ground-truth detections), new collisions and the
-terrain report for the SITL.  The ROS node only converts and publishes it, so the
-same engine can be driven by tests and benchmarks.
+seeded pose noise), the camera frames that are due in simulation time (rendered in the
+environment's light, through each camera's effects, depth degraded if configured,
+ground-truth detections), new collisions, the moving objects' states and the terrain
+report for the SITL.  The ROS node only converts and publishes it, so the same engine
+can be driven by tests and benchmarks.
+
+Moving people and vehicles (:mod:`uav_sim_bridge.core.motion`) are posed from the state's
+simulation time only, whenever something looks at them (a camera frame, a collision test
+near their path, an object-state message): a lockstep run sees the same world at the same
+times, however fast it runs. An object moved by :meth:`BridgeEngine.move_object` (the
+``set_object_pose`` service, ``object_poses``) leaves its path and stays where it was put.
+
+Camera frames with a ``latency_s`` are held back and returned by the step whose time has
+reached their capture time plus the latency (stamped with the capture time, as a camera
+driver stamps its exposure); dropped frames are rendered (their detections are ground truth
+of the scene and are kept) but their images are not returned.
 
 The engine must be used from the thread that created its renderer (GL rule).
 """
@@ -15,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,19 +35,27 @@ import numpy.typing as npt
 
 from uav_common.geo import GeoPoint, LocalProjection
 from uav_sim_bridge.config import SimBridgeConfig
+from uav_sim_bridge.core import figures
 from uav_sim_bridge.core.camera import CameraModel
+from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, EffectsResult, camera_rng
 from uav_sim_bridge.core.collision import CollisionChecker, Contact
 from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections, visible_candidates
-from uav_sim_bridge.core.objects import ObjectPose, WorldObject
+from uav_sim_bridge.core.figures import PersonPose
+from uav_sim_bridge.core.lighting import Lighting, lighting_for
+from uav_sim_bridge.core.motion import MotionPlan, MoverState, plan_motion
+from uav_sim_bridge.core.objects import ObjectPose, ObjectState, WorldObject
 from uav_sim_bridge.core.schedule import RateSchedule
 from uav_sim_bridge.core.sensor_noise import PoseNoise, degrade_depth
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.vehicle_state import VehicleState
 from uav_sim_bridge.core.world import World
+from uav_sim_bridge.core.world_config import ObjectClass
 from uav_sim_bridge.render import RenderedFrame, Renderer
 
-__all__ = ["BridgeEngine", "CameraOutput", "StepOutput", "TerrainReport"]
+__all__ = ["BridgeEngine", "CameraOutput", "ObjectState", "StepOutput", "TerrainReport"]
 
+#: Phases of the walking cycle precomputed per walker.
+_GAIT_STEPS = 30
 # Surfaces up to this far above base_link still count as "under" the vehicle (its gear hangs below it).
 _GROUND_TOLERANCE_M = 0.5
 
@@ -52,6 +73,10 @@ class CameraOutput:
     frame: RenderedFrame | None
     depth_m: npt.NDArray[np.float32] | None  # degraded copy when noise is on, else frame.depth_m
     detections: list[GroundTruthDetection] | None
+    #: Simulation time the frame was captured (its stamp); later than the step's only for delayed frames.
+    t_capture_s: float = math.nan
+    exposure_s: float = 0.0  # camera effects: exposure time (0: no exposure model)
+    gain: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -73,6 +98,8 @@ class StepOutput:
     cameras: list[CameraOutput] = field(default_factory=list)
     new_contacts: list[Contact] = field(default_factory=list)
     terrain: TerrainReport | None = None
+    #: The moving (and moved) people and vehicles, at ``publish.object_states_rate_hz``; None between.
+    objects: list[ObjectState] | None = None
 
 
 class BridgeEngine:
@@ -99,6 +126,43 @@ class BridgeEngine:
         self._touching: set[int] = set()
         # Bounding spheres (centres, radii) of the people and vehicles of the detection classes (rebuilt on a move).
         self._spheres: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
+        # Environment: light (the renderer follows it), camera effects and depth noise per camera.
+        env = cfg.environment
+        self.lighting: Lighting = lighting_for(env, world.config.latitude_deg, cfg.render.haze_distance_m)
+        renderer.set_lighting(self.lighting)
+        self.effects: dict[str, CameraEffects] = {}
+        for name, cam in self.cameras.items():
+            fx_cfg = env.effects_for(name)
+            if fx_cfg.active:
+                self.effects[name] = CameraEffects(
+                    fx_cfg, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, camera_rng(env.seed, name)
+                )
+        self._depth_rng = camera_rng(env.seed, "depth_noise")
+        self._pool: ThreadPoolExecutor | None = None
+        self._delayed: list[CameraOutput] = []
+        # Moving people and vehicles.
+        self.motion: MotionPlan = plan_motion(
+            world.objects, world.roads, world.terrain.bounds_m, world.config, cfg.actors
+        )
+        self._moving: dict[int, MoverState] = {}
+        self._moved_ids: set[int] = set()  # moved by a request: reported in object states, no longer on a path
+        self._synced_t: float | None = None
+        self._object_schedule = RateSchedule(cfg.publish.object_states_rate_hz)
+        self._centre: dict[tuple[int, int], npt.NDArray[np.float64]] = {}
+        self._walkers = [m for m in self.motion.movers if m.obj.object_class is ObjectClass.PERSON]
+        for iid, pose in self.motion.poses.items():
+            self._reshape_person(self._objects[iid], pose)
+        for m in self._walkers:
+            self._reshape_person(m.obj, PersonPose.WALKING)
+        self._gaits = self._gait_cycles([m.obj for m in self._walkers])
+        # where the movers were at the last sync, how far they reach and how fast they go (collision pre-test)
+        self._mover_radius = {
+            m.obj.instance_id: 0.5 * float(np.linalg.norm(m.obj.size_m)) + 1.0 for m in self.motion.movers
+        }
+        self._mover_xy = np.zeros((0, 2))
+        self._mover_reach = np.zeros(0)
+        self._mover_speed = np.zeros(0)
+        self._renderer_stale: list[MoverState] = []
         # Detection-only renders stop past the detection range plus the largest movable object:
         # nothing farther can hide or be an object whose centre is in range.
         largest_m = max((float(np.linalg.norm(o.size_m)) for o in self._objects.values()), default=0.0)
@@ -109,6 +173,119 @@ class BridgeEngine:
         }
         for name, (x, y, yaw_deg) in cfg.object_poses.items():
             self.move_object(name, x, y, None, math.radians(yaw_deg))
+        self.sync_movers(0.0)
+
+    # ------------------------------------------------------------------ moving objects
+    def _person_local(self, obj: WorldObject, pose: PersonPose, phase: float) -> npt.NDArray[np.float64]:
+        """Triangle-soup vertices of a person in a pose (the renderer's vertex order)."""
+        height, build = obj.shape if len(obj.shape) == 2 else (1.75, 1.0)
+        key = (obj.instance_id, int(pose))
+        if key not in self._centre:
+            self._centre[key] = figures.person_box_centres([height], [build], [int(pose)])[0]
+        verts = figures.person_vertices([height], [build], [int(pose)], [phase], centre_xy=self._centre[key][None])
+        faces, _ = figures.person_faces()
+        return np.asarray(verts[0][faces].reshape(-1, 3), dtype=np.float64)
+
+    def _gait_cycles(
+        self, people: list[WorldObject]
+    ) -> dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
+        """Each walker's mesh at :data:`_GAIT_STEPS` phases of its stride (vertices, flat normals), computed once:
+        a frame picks the nearest phase (a 30th of a stride is ~5 cm of walking)."""
+        if not people:
+            return {}
+        faces, _ = figures.person_faces()
+        walking = int(PersonPose.WALKING)
+        shapes = np.array([o.shape if len(o.shape) == 2 else (1.75, 1.0) for o in people])
+        phases = np.arange(_GAIT_STEPS) / _GAIT_STEPS
+        out = {}
+        for o, (height, build) in zip(people, shapes, strict=True):
+            centre = self._centre[(o.instance_id, walking)]
+            v = figures.person_vertices(
+                np.full(_GAIT_STEPS, height), np.full(_GAIT_STEPS, build), np.full(_GAIT_STEPS, walking), phases,
+                centre_xy=np.tile(centre, (_GAIT_STEPS, 1)),
+            )  # fmt: skip
+            soup = v[:, faces]  # (steps, F, 3, 3)
+            n = np.cross(soup[:, :, 1] - soup[:, :, 0], soup[:, :, 2] - soup[:, :, 0])
+            n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
+            out[o.instance_id] = (
+                soup.reshape(_GAIT_STEPS, -1, 3).astype(np.float32),
+                np.repeat(n, 3, axis=1).astype(np.float32),
+            )
+        return out
+
+    def _reshape_person(self, obj: WorldObject, pose: PersonPose) -> None:
+        """Give a person another pose: its mesh (renderer and collisions), kind and box."""
+        height, build = obj.shape if len(obj.shape) == 2 else (1.75, 1.0)
+        local = self._person_local(obj, pose, 0.0)
+        self.renderer.set_object_shape(obj.instance_id, local)
+        self.collisions.set_object_shape(obj.instance_id, local.reshape(-1, 3, 3))
+        size = figures.person_boxes([height], [build], [int(pose)])[0]
+        current = self._objects[obj.instance_id]
+        self._objects[obj.instance_id] = dataclasses.replace(
+            current, kind=pose.label, size_m=(float(size[0]), float(size[1]), float(size[2]))
+        )
+        self._spheres = None
+
+    def sync_movers(self, t_s: float, *, render: bool = False) -> None:
+        """Pose every moving person and vehicle at simulation time ``t_s`` (once per distinct time): their records,
+        collision shapes and, before the next render (``render``: now), the renderer's meshes."""
+        if self._synced_t == t_s or not self.motion.movers:
+            self._synced_t = t_s
+            if render:
+                self._sync_renderer()
+            return
+        self._synced_t = t_s
+        states = [st for st in self.motion.states_at(t_s, self.world.terrain) if st.instance_id not in self._moved_ids]
+        for st in states:
+            iid = st.instance_id
+            self._moving[iid] = st
+            self.collisions.set_object_pose(iid, st.pose)
+            o = self._objects[iid]
+            self._objects[iid] = WorldObject(o.instance_id, o.object_class, o.name, st.pose, o.size_m, o.kind, o.shape)
+        if states:
+            self._mover_xy = np.array([st.pose.position_m[:2] for st in states])
+            self._mover_reach = np.array([self._mover_radius[st.instance_id] for st in states])
+            self._mover_speed = np.array([math.hypot(*st.velocity_mps[:2]) for st in states])
+        self._renderer_stale = states
+        self._spheres = None
+        if render:
+            self._sync_renderer()
+
+    def _sync_renderer(self) -> None:
+        """Give the renderer the movers' last synced poses and gait (only when something is about to be drawn)."""
+        states = self._renderer_stale
+        if not states:
+            return
+        self._renderer_stale = []
+        states = [st for st in states if st.instance_id not in self._moved_ids]  # moved by a request since
+        walkers = [st for st in states if st.instance_id in self._gaits]
+        if walkers:  # the gait: new limb positions first (one batch), then every mover's pose
+            ids = [st.instance_id for st in walkers]
+            k = [round(st.gait_phase * _GAIT_STEPS) % _GAIT_STEPS for st in walkers]
+            verts = np.stack([self._gaits[i][0][j] for i, j in zip(ids, k, strict=True)])
+            normals = np.stack([self._gaits[i][1][j] for i, j in zip(ids, k, strict=True)])
+            self.renderer.set_object_shapes(ids, verts, normals)
+        for st in states:
+            self.renderer.set_object_pose(st.instance_id, st.pose)
+
+    def _movers_near(self, position_m: npt.NDArray[np.float64], t_s: float, margin_m: float) -> bool:
+        """Whether any moving object may be within ``margin_m`` of ``position_m`` at ``t_s``: its distance at the
+        last sync, less its size and how far it can have moved since."""
+        if not len(self._mover_xy) or self._synced_t is None:
+            return False
+        d = np.hypot(*(self._mover_xy - position_m[:2]).T)
+        travel = self._mover_speed * abs(t_s - self._synced_t)
+        return bool(np.any(d - self._mover_reach - travel <= margin_m))
+
+    def object_states(self) -> list[ObjectState]:
+        """The moving people and vehicles (and those moved by a request) as of the last sync."""
+        out = []
+        for iid in sorted(set(self._moving) | self._moved_ids):
+            st = self._moving.get(iid)
+            moving = iid not in self._moved_ids and st is not None
+            vel = st.velocity_mps if (st is not None and moving) else (0.0, 0.0, 0.0)
+            out.append(ObjectState(self._objects[iid], vel, moving))
+        return out
 
     # ------------------------------------------------------------------ objects
     def lookup(self, name_or_id: str | int) -> WorldObject:
@@ -143,7 +320,15 @@ class BridgeEngine:
         pose = ObjectPose((float(x_m), float(y_m), float(z_m)), float(yaw_rad))
         self.renderer.set_object_pose(obj.instance_id, pose)
         self.collisions.set_object_pose(obj.instance_id, pose)
-        moved = WorldObject(obj.instance_id, obj.object_class, obj.name, pose, obj.size_m)
+        self._moved_ids.add(obj.instance_id)  # off its path, if it had one: it stays where it was put
+        self._moving.pop(obj.instance_id, None)
+        if self._objects[obj.instance_id].kind == PersonPose.WALKING.label:  # a walker stops: it stands still
+            generated = self.world.object(obj.instance_id).kind
+            still = self.motion.poses.get(obj.instance_id) or (
+                PersonPose.from_label(generated) if generated and generated != "walking" else PersonPose.STANDING
+            )
+            self._reshape_person(self._objects[obj.instance_id], still)
+        moved = dataclasses.replace(self._objects[obj.instance_id], pose=pose)
         self._objects[obj.instance_id] = moved
         self._spheres = None
         return moved
@@ -166,47 +351,139 @@ class BridgeEngine:
             want_detections: whether detections are consumed.
         """
         cfg = self.cfg
+        t = state.sim_time_s
         pose = state.t_map_base
-        published = self._pose_noise.apply(pose, state.sim_time_s, self._rng) if cfg.noise.enabled else pose
+        published = self._pose_noise.apply(pose, t, self._rng) if cfg.noise.enabled else pose
         outputs: list[CameraOutput] = []
         det_cams = set(cfg.detections.cameras) if want_detections else set()
-        for name, cam in self.cameras.items():
-            if not self._schedules[name].due(state.sim_time_s):
+        due = [name for name in self.cameras if self._schedules[name].due(t)]
+        due = [name for name in due if wanted(name) or name in det_cams]
+        if due:
+            self.sync_movers(t)
+        pending: list[tuple[CameraOutput, Future[EffectsResult] | None]] = []
+        for name in due:
+            # a camera's effects run in the effects thread while the next camera renders (GL stays in this thread)
+            out, job = self._camera(name, state, full=wanted(name), detect=name in det_cams)
+            if out is not None:
+                pending.append((out, job))
+        for out, job in pending:
+            if job is None:
+                outputs.append(out)
                 continue
-            full = wanted(name)
-            if not (full or name in det_cams):
-                continue
-            t_opt = cam.optical_pose(pose)
-            frame: RenderedFrame | None = None
-            depth: npt.NDArray[np.float32] | None = None
-            if full:
-                det_cam = cam
-                frame = self.renderer.render(cam, t_opt)
-                instance_id = frame.instance_id
-                depth = frame.depth_m
-                if cfg.noise.enabled:
-                    depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng)
-            else:
-                det_cam = self._detection_cameras[name]
-                if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
-                    outputs.append(CameraOutput(cam, t_opt, None, None, []))
-                    continue
-                instance_id = self.renderer.render_instances(det_cam, t_opt)
-            dets = None
-            if name in det_cams:
-                cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
-                dets = []  # most frames: nobody in view, and the per-pixel work below is skipped
-                if cands:
-                    alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands)
-                    objs = {iid: self._objects[iid] for iid in cands}
-                    dets = ground_truth_detections(instance_id, t_opt, objs, cfg.detections, alone)
-            outputs.append(CameraOutput(cam, t_opt, frame, depth, dets))
+            result = job.result()
+            frame = out.frame
+            assert frame is not None
+            effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
+            outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
+        outputs = self._deliver(outputs, t)
+        reach = cfg.collision.vehicle_radius_m + 1.0
+        if self._movers_near(state.position_m, t, reach) or (
+            self._previous_position is not None and self._movers_near(self._previous_position, t, reach)
+        ):
+            self.sync_movers(t)  # a mover may be within reach: collisions need it where it is now
         contacts = self.collisions.check(self._previous_position, state.position_m)
         self._previous_position = state.position_m.copy()
         touching = {c.instance_id for c in contacts}
         new = [c for c in contacts if c.instance_id not in self._touching]
         self._touching = touching
-        return StepOutput(state, published, outputs, new, self.terrain_report(state, home))
+        objects = None
+        if (self.motion.movers or self._moved_ids) and self._object_schedule.due(t):
+            self.sync_movers(t)
+            objects = self.object_states()
+        return StepOutput(state, published, outputs, new, self.terrain_report(state, home), objects)
+
+    def _camera(
+        self, name: str, state: VehicleState, *, full: bool, detect: bool
+    ) -> tuple[CameraOutput | None, Future[EffectsResult] | None]:
+        """Render camera ``name`` for this state (all images, or only the ids its detections need); its camera
+        effects, if any, are submitted to the effects thread (the returned future)."""
+        cfg = self.cfg
+        t = state.sim_time_s
+        cam = self.cameras[name]
+        t_opt = cam.optical_pose(state.t_map_base)
+        frame: RenderedFrame | None = None
+        depth: npt.NDArray[np.float32] | None = None
+        job: Future[EffectsResult] | None = None
+        dropped = False
+        if full:
+            det_cam = cam
+            effects = self.effects.get(name)
+            dropped = effects.drop() if effects is not None else False
+            self._sync_renderer()
+            frame = self.renderer.render(cam, t_opt)
+            instance_id = frame.instance_id
+            depth = frame.depth_m
+            if cfg.noise.enabled:
+                depth = degrade_depth(frame.depth_m, cfg.noise.depth, self._rng)
+            elif cfg.environment.depth_noise is not None:
+                depth = degrade_depth(frame.depth_m, cfg.environment.depth_noise, self._depth_rng)
+            if effects is not None and not dropped:
+                rendered, motion = frame, self._camera_motion(cam, state)
+                # the colour is read in the effects thread: with shadows, finishing it is part of the job there
+                job = self._effects_pool().submit(
+                    lambda: effects.apply(rendered.color_rgb, rendered.depth_m, t, motion)
+                )
+        else:
+            det_cam = self._detection_cameras[name]
+            if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
+                return CameraOutput(cam, t_opt, None, None, [], t), None
+            self._sync_renderer()
+            instance_id = self.renderer.render_instances(det_cam, t_opt)
+        dets = None
+        if detect:
+            cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
+            dets = []  # most frames: nobody in view, and the per-pixel work below is skipped
+            if cands:
+                self._sync_renderer()
+                alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands)
+                objs = {iid: self._objects[iid] for iid in cands}
+                dets = ground_truth_detections(instance_id, t_opt, objs, cfg.detections, alone)
+        if dropped:  # the camera lost the frame: only the (ground-truth) detections remain
+            frame, depth = None, None
+            if dets is None:
+                return None, None
+        return CameraOutput(cam, t_opt, frame, depth, dets, t), job
+
+    def _effects_pool(self) -> ThreadPoolExecutor:
+        """One worker: each camera's effects run in submission order (deterministic), beside the GL thread."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-effects")
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the effects thread (the renderer is the caller's)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def _deliver(self, outputs: list[CameraOutput], t_s: float) -> list[CameraOutput]:
+        """Hold back delayed camera images until their capture time plus the camera's latency."""
+        ready: list[CameraOutput] = []
+        for out in outputs:
+            latency = self.cfg.environment.effects_for(out.camera.name).latency_s
+            if latency > 0.0 and out.frame is not None:
+                if out.detections is not None:  # detections are ground truth: never delayed
+                    ready.append(dataclasses.replace(out, frame=None, depth_m=None))
+                self._delayed.append(out)
+            else:
+                ready.append(out)
+        keep = []
+        for out in self._delayed:
+            latency = self.cfg.environment.effects_for(out.camera.name).latency_s
+            if out.t_capture_s + latency <= t_s + 1e-9:
+                ready.append(dataclasses.replace(out, detections=None))
+            else:
+                keep.append(out)
+        self._delayed = keep
+        return ready
+
+    @staticmethod
+    def _camera_motion(cam: CameraModel, state: VehicleState) -> CameraMotion:
+        """The camera's linear and angular velocity in its optical frame (the mount's lever arm neglected)."""
+        r = cam.t_base_optical.rotation.T  # base_link -> optical
+        v = r @ np.asarray(state.velocity_body_mps, dtype=np.float64)
+        w = r @ np.asarray(state.angular_velocity_body_radps, dtype=np.float64)
+        return CameraMotion((float(v[0]), float(v[1]), float(v[2])), (float(w[0]), float(w[1]), float(w[2])))
 
     def detectables_in_view(self, camera: CameraModel, t_map_optical: RigidTransform) -> bool:
         """Whether any person or vehicle of the detection classes could be detected in this view: its bounding

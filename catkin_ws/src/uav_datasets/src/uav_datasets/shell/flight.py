@@ -8,7 +8,9 @@ one message per simulation state). From the scenario it rebuilds what the bridge
 search-and-rescue person's seeded placement). Frames fall where the bridge rendered them: at the first
 state at or after each instant of the camera's rate grid (``RateSchedule``), so the re-rendered frames
 are the run's frames (those of the camera at least ``min_altitude_agl_m`` above the terrain). Object
-identities are the world's instance ids, the same in every frame.
+identities are the world's instance ids, the same in every frame. People and vehicles that walk or drive
+(the scenario's or world's ``actors``) are not re-posed: they stay where the world generated them
+(docs/datasets.md).
 
 ``flight.scenario`` instead flies the scenario first with ``uav-run`` (lockstep, ``replay``
 recording) into ``<dataset>/source_run`` and converts that run.

@@ -38,14 +38,18 @@ from uav_common.paths import config_dir, runs_dir
 from uav_common.shell.processes import LoggedProcess, free_port, free_udp_port, wait_for_port
 from uav_scenarios.core.config import Scenario, TimeMode, TimeSpec, effective_yaml, load_scenario
 from uav_scenarios.core.launch import RunPorts
+from uav_scenarios.core.world import world_config_for
 from uav_scenarios.errors import ScenarioError
 from uav_scenarios.report.data import read_run_bag
 from uav_scenarios.report.html import build_report
 from uav_scenarios.report.text import headline
+from uav_scenarios.shell.environment import check_actors, environment_presets, scenario_environment, with_environment
 from uav_scenarios.shell.preflight import check_node_settings
 from uav_scenarios.shell.versions import tool_versions
+from uav_scenarios.shell.world_store import load_world
+from uav_sim_bridge.core.motion import ActorsConfig
 
-__all__ = ["main", "scenario_yaml"]
+__all__ = ["environment_row", "environment_table", "main", "scenario_yaml"]
 
 #: The demo: loiter this many simulated seconds (``make demo``).
 DEMO_SECONDS = 90.0
@@ -194,21 +198,132 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="lay a stress preset over the scenario (config/stress/PRESET.yaml, or a path); repeatable, in order",
     )
     p.add_argument("--world-cache-dir", default="", help="world cache folder (default: the bridge's)")
+    p.add_argument(
+        "--environment", metavar="PRESET", help="run under this environment preset (config/environments/PRESET.yaml)"
+    )
+    p.add_argument(
+        "--each-environment",
+        nargs="?",
+        const="all",
+        metavar="PRESETS",
+        help="run the scenario once under each preset (comma-separated, default: all of config/environments), "
+        "one run folder each, and write a summary of their metrics",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:  # noqa: PLR0915
+def _checked(scenario: Scenario, args: argparse.Namespace) -> Scenario:
+    """The scenario with its environment resolved (the run folder records every value) and its actors checked
+    against its world.
+
+    Raises:
+        ScenarioConfigError: an unknown preset or key, a bad value, actors the world cannot carry out.
+    """
+    if args.environment:
+        scenario = with_environment(scenario, args.environment)
+    latitude = world_config_for(scenario).latitude_deg
+    merged, _ = scenario_environment(scenario, latitude)
+    scenario = replace(scenario, environment=merged)
+    if scenario.actors != ActorsConfig():
+        cache = Path(args.world_cache_dir) if args.world_cache_dir else None
+        check_actors(scenario, load_world(scenario, cache))
+    return scenario
+
+
+def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:
     args = _parse(argv)
     try:
         stress = tuple(args.stress)
         scenario = _overrides(load_scenario(args.scenario, stress=stress, stress_dir=config_dir() / "stress"), args)
         check_node_settings(scenario)  # what the bridge and the SITL would refuse, before anything starts
         fixed = dict(item.split("=", 1) for item in args.port)
-        ports = allocate_ports(fixed)
+        allocate_ports(fixed)
+        presets: list[str] = []
+        if args.each_environment:
+            presets = (
+                environment_presets()
+                if args.each_environment == "all"
+                else [p.strip() for p in args.each_environment.split(",") if p.strip()]
+            )
+            if args.run_dir:
+                msg = "--run-dir names one run folder; --each-environment makes one per preset (use --runs-dir)"
+                raise ValueError(msg)
+            checked = [_checked(scenario, argparse.Namespace(**{**vars(args), "environment": p})) for p in presets]
+        else:
+            checked = [_checked(scenario, args)]
     except (ConfigError, ScenarioError, ValueError) as err:
         sys.stderr.write(f"uav-run: {err}\n")
         return int(ExitCode.CONFIG)
+    if not presets:
+        return _run(checked[0], args, allocate_ports(fixed), out)
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    rows = []
+    worst = 0
+    for preset, sc in zip(presets, checked, strict=True):
+        run_dir = (args.runs_dir / f"{sc.name}-{preset}-{stamp}").resolve()
+        out.write(f"\n=== environment {preset} ===\n")
+        rc = _run(sc, argparse.Namespace(**{**vars(args), "run_dir": run_dir}), allocate_ports(fixed), out)
+        worst = worst or rc
+        rows.append(environment_row(preset, run_dir, rc))
+        if rc == 130:
+            break
+    summary = (args.runs_dir / f"{scenario.name}-environments-{stamp}.json").resolve()
+    summary.write_text(json.dumps(rows, indent=1) + "\n")
+    out.write("\n" + "\n".join(environment_table(rows)) + f"\nsummary: {summary}\n")
+    return worst
+
+
+def environment_row(preset: str, run_dir: Path, rc: int) -> dict[str, Any]:
+    """One line of the ``--each-environment`` summary: the run's headline metrics (NaN where missing)."""
+    metrics: dict[str, Any] = {}
+    with contextlib.suppress(OSError, json.JSONDecodeError):
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+    pace: dict[str, Any] = {}
+    with contextlib.suppress(OSError, json.JSONDecodeError):
+        pace = json.loads((run_dir / "pace.json").read_text())
+
+    def get(*keys: str) -> Any:
+        node: Any = metrics
+        for k in keys:
+            node = node.get(k) if isinstance(node, dict) else None
+        return node
+
+    return {
+        "environment": preset,
+        "run_dir": str(run_dir),
+        "exit_code": rc,
+        "stop_reason": get("stop_reason"),
+        "mapped_pct": get("coverage", "mapped_pct"),
+        "detections": get("detection"),
+        "tracking": get("tracking"),
+        "real_time_factor": pace.get("real_time_factor"),
+    }
+
+
+def environment_table(rows: list[dict[str, Any]]) -> list[str]:
+    """The summary as text: one line per preset."""
+
+    def f(v: Any, fmt: str) -> str:
+        return format(v, fmt) if isinstance(v, int | float) and math.isfinite(v) else "-"
+
+    lines = [
+        f"{'environment':<14} {'exit':>4} {'stop':<14} {'mapped %':>9} {'det TP/FP/FN':>14} {'MOTA':>6} {'rtf':>5}"
+    ]
+    for r in rows:
+        det = r.get("detections") or {}
+        trk = r.get("tracking") or {}
+        tp_fp_fn = f"{det.get('tp', '-')}/{det.get('fp', '-')}/{det.get('fn', '-')}" if det else "-"
+        lines.append(
+            f"{r['environment']:<14} {r['exit_code']:>4} {r.get('stop_reason') or '-'!s:<14} "
+            f"{f(r.get('mapped_pct'), '.2f'):>9} {tp_fp_fn:>14} {f(trk.get('mota'), '.3f'):>6} "
+            f"{f(r.get('real_time_factor'), '.2f'):>5}"
+        )
+    return lines
+
+
+def _run(scenario: Scenario, args: argparse.Namespace, ports: RunPorts, out: TextIO) -> int:  # noqa: PLR0915
+    """One run of a checked scenario."""
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     run_dir = (args.run_dir or args.runs_dir / f"{scenario.name}-{stamp}").resolve()
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)

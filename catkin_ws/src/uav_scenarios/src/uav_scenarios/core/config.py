@@ -27,6 +27,7 @@ from typing import Any, Literal
 from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.validate import require_in_range
 from uav_scenarios.errors import ScenarioConfigError
+from uav_sim_bridge.core.motion import ActorsConfig
 
 __all__ = [
     "LINK_ENDPOINTS",
@@ -234,6 +235,9 @@ class PersonSpec:
     clearance_m: float = 5.0
     #: Fixed position instead of a random one (overrides the seed).
     position_m: Point2 | None = None
+    #: The person's pose (``standing``, ``sitting``, ``lying``: a victim is often lying); null keeps the
+    #: world's. The person of interest never walks (it is put in place and stays).
+    pose: Literal["standing", "sitting", "lying"] | None = None
 
     def __post_init__(self) -> None:
         _check_polygon("region_m", self.region_m)
@@ -553,6 +557,7 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         GEOLOCATED_TOPIC,
         "/geolocator/status",
         "/sim/collision",
+        "/sim/object_states",
         "/map_server/insert_stats",
         "/scenario/config",
         "/scenario/status",
@@ -671,6 +676,12 @@ class Scenario:
     time: TimeSpec = field(default_factory=TimeSpec)
     recording: RecordingSpec = field(default_factory=RecordingSpec)
     scoring: ScoringSpec = field(default_factory=ScoringSpec)
+    #: Light, weather and camera effects: ``{preset: NAME, <free values>}`` (``config/environments/NAME.yaml``,
+    #: keys in docs/sim_bridge.md); empty = the ``clean`` preset. Validated when the run starts
+    #: (``uav_scenarios.shell.environment``).
+    environment: dict[str, Any] = field(default_factory=dict)
+    #: Who moves and how (over the world's ``people``/``vehicles`` motion keys): counts, speeds, named objects.
+    actors: ActorsConfig = field(default_factory=ActorsConfig)
     #: Per-node private parameter overrides, e.g. ``{sim_bridge: {cameras: ...}}``.
     node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: The file this scenario came from (set by :func:`load_scenario`).
@@ -689,6 +700,14 @@ class Scenario:
         if self.stop.target_found and self.mission is not MissionKind.SEARCH_AND_RESCUE:
             msg = "stop.target_found only makes sense for a search_and_rescue mission"
             raise ValueError(msg)
+        if self.search is not None and self.search.person.name in self.actors.objects:
+            motion = self.actors.objects[self.search.person.name].motion
+            if motion not in (None, "none"):
+                msg = (
+                    f"actors.objects.{self.search.person.name}: the person of interest is put in place and stays "
+                    f"there; it cannot have motion {motion}"
+                )
+                raise ValueError(msg)
         if self.faults:
             msg = (
                 "faults: scripted in-flight faults are not yet run by the mission manager (issue 23, part B: the"
@@ -736,6 +755,7 @@ REPLAYED_TOPICS = (
     "/detections/ground_truth",
     GEOLOCATED_TOPIC,
     "/sim/collision",
+    "/sim/object_states",
     "/scenario/status",
 )
 

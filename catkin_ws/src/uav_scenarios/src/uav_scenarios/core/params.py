@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import yaml
 
 from uav_autonomy.core.patterns import expanding_square, follow_terrain, lawnmower
 from uav_autonomy.errors import InvalidInputError
-from uav_common.config import deep_merge
+from uav_common.config import deep_merge, to_mapping
 from uav_common.robot import RobotDescription
 from uav_scenarios.core.config import (
     FEATURE_NAMES,
@@ -35,6 +36,7 @@ from uav_scenarios.core.config import (
     TimeMode,
 )
 from uav_scenarios.errors import ScenarioError
+from uav_sim_bridge.core.motion import ActorsConfig
 
 #: Terrain height above home at (x, y), vectorised (e.g. the world's ``height_at``).
 GroundModel = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.ArrayLike]
@@ -137,7 +139,27 @@ def sim_bridge(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if ctx.person:
         p = ctx.person
         out["object_poses"] = {str(p["name"]): [float(p["x_m"]), float(p["y_m"]), 0.0]}
+    if scenario.environment:
+        # as YAML text: ROS parameters (XML-RPC) cannot hold the nulls an environment may have
+        out["environment"] = yaml.safe_dump(dict(scenario.environment), sort_keys=True)
+    # None in actors means "the world's": left out (ROS parameters cannot hold it)
+    actors = _without_none(to_mapping(scenario.actors)) if scenario.actors != ActorsConfig() else {}
+    if scenario.search is not None and scenario.search.person.pose is not None:
+        name = scenario.search.person.name
+        objects = actors.setdefault("objects", {})
+        objects[name] = {**objects.get(name, {}), "pose": scenario.search.person.pose}
+    if actors:
+        out["actors"] = actors
     return out
+
+
+def _without_none(data: Any) -> Any:
+    """A mapping without its ``None`` values, at every depth (empty sections are kept)."""
+    if isinstance(data, Mapping):
+        return {k: _without_none(v) for k, v in data.items() if v is not None}
+    if isinstance(data, list):
+        return [_without_none(v) for v in data]
+    return data
 
 
 def lockstep_steps(scenario: Scenario) -> int:

@@ -81,6 +81,7 @@ from uav_msgs.msg import (
     GoalReason,
     GridLayers,
     MapInsertStats,
+    ObjectStateArray,
     RunMetrics,
     ScenarioStatus,
     TrackArray,
@@ -113,6 +114,7 @@ from uav_scenarios.ros.records import (
     goal_from_msg,
     grid_from_msg,
     image_from_msg,
+    object_states_from_msg,
     pose_from_odometry,
     stamp_s,
     tracks_from_msg,
@@ -179,6 +181,7 @@ class ScorerNode:
             swath_m_per_m=swath_width_m(1.0, map_camera_hfov_deg),
             footprint_aspect=map_camera_aspect,
             camera_pitch_deg=dict(camera_pitch_deg) or {"nadir": 90.0, "forward": 25.0},
+            spec_resolution_m=scenario.map.resolution_m,
             score_threshold=perception.score_threshold,
             classes=classes,
         )
@@ -255,6 +258,12 @@ class ScorerNode:
             )
         sub("/scenario/tracks", TrackArray, self._feed(tracks_from_msg, "add_tracks"), queue_size=QUEUE)
         sub("/sim/collision", Collision, self._feed(collision_from_msg, "add_collision"), queue_size=QUEUE)
+        sub(
+            "/sim/object_states",
+            ObjectStateArray,
+            self._feed(object_states_from_msg, "add_object_states"),
+            queue_size=QUEUE,
+        )
         sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=QUEUE)
         sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=QUEUE)
         sub(
@@ -506,10 +515,12 @@ class ScorerNode:
             except (OSError, ValueError) as err:
                 rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
                 return
-            accuracy = voxel_accuracy(voxel_keys_from_indices(cells.reshape(-1, 3)), truth_keys, truth.surface_columns)
+            keys = voxel_keys_from_indices(cells.reshape(-1, 3))
+            accuracy = voxel_accuracy(keys, truth_keys, truth.surface_columns)
             with self.lock:
                 if not self.finished or wait:
                     self.scorer.set_map_accuracy(t_s, accuracy)
+                    self.scorer.evaluate_trails(t_s, keys)
         finally:
             self._accuracy_busy.release()
 

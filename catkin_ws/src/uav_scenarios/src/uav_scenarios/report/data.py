@@ -30,11 +30,15 @@ from uav_scenarios.ros.records import (
     goal_from_msg,
     grid_from_msg,
     image_from_msg,
+    object_states_from_msg,
     pose_from_odometry,
     stamp_s,
 )
 
-__all__ = ["METRIC_COLUMNS", "CameraImage", "RunData", "read_run_bag"]
+__all__ = ["METRIC_COLUMNS", "TRAIL_COLUMNS", "CameraImage", "RunData", "read_run_bag"]
+
+#: ``moving_objects`` metrics that become ``trail_<name>`` time-series columns (from each summary).
+TRAIL_COLUMNS = ("mapped_voxels", "seen_again_voxels", "ghost_voxels", "cleared_voxels")
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -88,6 +92,8 @@ class RunData:
     #: The scorer's gallery of the detector's worst false positives and misses (RGB mosaic), if any.
     gallery: npt.NDArray[Any] | None = None
     target_position_m: tuple[float, float] | None = None
+    #: Moving people and vehicles: name -> ``[(t, x, y), ...]`` (``/sim/object_states``).
+    object_tracks: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     stop_reason: str = ""
     notes: list[str] = field(default_factory=list)
     start_stamp_s: float = 0.0
@@ -149,9 +155,20 @@ def read_run_bag(path: Path, *, snapshot_topics: bool = True) -> RunData:  # noq
         def on_metrics(m: Any, _conn: Any) -> None:
             row = {"t_s": stamp_s(m.header.stamp)}
             row.update({c: float(getattr(m, c)) for c in METRIC_COLUMNS})
+            summary = json.loads(m.summary_json) if m.summary_json else {}
+            moving = summary.get("moving_objects") or {}
+            for key in TRAIL_COLUMNS:
+                value = moving.get(key)
+                row[f"trail_{key}"] = float(value) if isinstance(value, int | float) else math.nan
             metrics_rows.append(row)
-            if m.summary_json:
-                run.summary = json.loads(m.summary_json)
+            if summary:
+                run.summary = summary
+
+        def on_objects(m: Any, _conn: Any) -> None:
+            rec = object_states_from_msg(m)
+            for row, name, moving in zip(rec.rows, rec.names, rec.moving, strict=True):
+                if moving:
+                    run.object_tracks.setdefault(name, []).append((rec.t_s, float(row[1]), float(row[2])))
 
         def on_status(m: Any, _conn: Any) -> None:
             nonlocal first_status
@@ -187,6 +204,7 @@ def read_run_bag(path: Path, *, snapshot_topics: bool = True) -> RunData:  # noq
             "/uav/controller/state": on_controller,
             "/autonomy/goal_reason": lambda m, _c: run.goals.append(goal_from_msg(m)),
             "/detections/ground_truth": lambda m, _c: run.detections.append(detections_from_msg(m)),
+            "/sim/object_states": on_objects,
             GEOLOCATED_TOPIC: lambda m, _c: run.detections.append(detections_from_msg(m)),
         }
         if detection_topic and detection_topic not in wanted:
@@ -268,6 +286,7 @@ def _finish(
     run.layers = [_shift(g, start) for g in run.layers]
     run.features = [_shift(g, start) for g in run.features]
     run.images = [CameraImage(i.t_s - start, i.camera, i.kind, i.image) for i in run.images]
+    run.object_tracks = {k: [(t - start, x, y) for t, x, y in v] for k, v in run.object_tracks.items()}
     if not run.summary:
         run.notes.append("no final metrics summary in the bag (the run may have been cut short)")
 

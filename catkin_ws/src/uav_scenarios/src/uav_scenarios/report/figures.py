@@ -293,6 +293,54 @@ def detection_figure(run: RunData, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def moving_objects_figure(run: RunData, path: Path) -> Path | None:
+    """Where the people and vehicles moved (over the drone's path), and what the map did with what they left."""
+    ts = run.timeseries
+    has_trails = "trail_mapped_voxels" in ts and bool(np.isfinite(ts["trail_mapped_voxels"]).any())
+    if not run.object_tracks and not has_trails:
+        return None
+    fig, (ax_map, ax_t) = plt.subplots(1, 2, figsize=(12, 4.8), layout="constrained")
+    if len(run.trajectory):
+        ax_map.plot(run.trajectory[:, 1], run.trajectory[:, 2], color="0.35", lw=1.0, label="drone")
+    labelled: set[bool] = set()
+    for name, track in sorted(run.object_tracks.items()):
+        arr = np.array(track)
+        person = name.startswith("person")
+        label = None if person in labelled else ("people (dot: last position)" if person else "vehicles")
+        labelled.add(person)
+        color = "tab:red" if person else "tab:blue"
+        ax_map.plot(arr[:, 1], arr[:, 2], lw=1.4, color=color, alpha=0.8, label=label)
+        ax_map.plot(arr[-1, 1], arr[-1, 2], "o", ms=3, color=color)
+    handles, labels = ax_map.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles, strict=False))
+    ax_map.legend(uniq.values(), uniq.keys(), fontsize=8, loc="best")
+    ax_map.set_aspect("equal", adjustable="datalim")
+    ax_map.set_xlabel("x east (m)")
+    ax_map.set_ylabel("y north (m)")
+    ax_map.set_title("Ground-truth tracks of the moving people and vehicles")
+    ax_map.grid(alpha=0.3)
+    if has_trails:
+        t = ts["t_s"]
+        for key, label, color in (
+            ("trail_mapped_voxels", "mapped occupied while an object was there", "0.5"),
+            ("trail_seen_again_voxels", "... left, and the map looked there again", "tab:orange"),
+            ("trail_cleared_voxels", "... of those, cleared by the map", "tab:green"),
+            ("trail_ghost_voxels", "... of those, still occupied (ghosts)", "tab:red"),
+        ):
+            if key not in ts:
+                continue
+            ok = np.isfinite(ts[key])
+            ax_t.step(t[ok], ts[key][ok], where="post", label=label, color=color)
+        ax_t.legend(fontsize=8, loc="upper left")
+    else:
+        ax_t.text(0.5, 0.5, "no map evaluation yet", ha="center", transform=ax_t.transAxes)
+    ax_t.set_xlabel("simulation time since start (s)")
+    ax_t.set_ylabel("voxels")
+    ax_t.set_title("Voxels the moving objects occupied: what the map kept")
+    ax_t.grid(alpha=0.3)
+    return _save(fig, path)
+
+
 _CONTEXT_TITLES = {
     "pixel_size": "pixel size (TinyPerson bins)",
     "range": "range",
@@ -390,6 +438,7 @@ FIGURES = {
     "voxels": ("Mean voxel age and voxel count over time", voxel_figure),
     "battery_altitude": ("Battery and altitude over time", battery_altitude_figure),
     "detections": ("Detection timeline", detection_figure),
+    "moving_objects": ("Moving people and vehicles, and the map's clearing of what they left", moving_objects_figure),
     "pr_curves": ("Detector precision-recall curves, overall and by context (COCO, IoU 0.5)", pr_curves_figure),
     "gallery": ("Detector gallery: worst false positives and misses", gallery_figure),
 }

@@ -36,6 +36,8 @@ _HEADLINES = (
     ("tracking.mota", "tracking MOTA"),
     ("tracking.idf1", "tracking IDF1"),
     ("tracking.hota", "tracking HOTA"),
+    ("moving_objects.movers", "moving people and vehicles"),
+    ("moving_objects.cleared_fraction", "their trail voxels the map cleared (fraction)"),
 )
 
 _CSS = """

@@ -64,4 +64,11 @@ def headline(summary: Mapping[str, Any]) -> list[str]:
             f"  tracking MOTA {f('tracking.mota', '', 3)}, IDF1 {f('tracking.idf1', '', 3)}, "
             f"HOTA {f('tracking.hota', '', 3)}"
         ),
+        (
+            f"  moving objects {f('moving_objects.movers', '', 0)}, {f('moving_objects.distance_m', ' m', 0)} "
+            "travelled; of the voxels they left that the map had marked occupied and looked at again, "
+            f"{f('moving_objects.cleared_voxels', '', 0)} cleared, {f('moving_objects.ghost_voxels', '', 0)} "
+            f"still occupied ({f('moving_objects.cleared_fraction', '', 2)} cleared; "
+            f"{f('moving_objects.unseen_voxels', '', 0)} not looked at since)"
+        ),
     ]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from uav_common.ros.arrays import MessageLayoutError, image_to_array, image_to_rgb
+from uav_scenarios.core.scoring.trails import ObjectStateRecord
 from uav_scenarios.core.scoring.types import (
     BatterySample,
     CollisionEvent,
@@ -41,6 +42,7 @@ __all__ = [
     "goal_from_msg",
     "grid_from_msg",
     "image_from_msg",
+    "object_states_from_msg",
     "pose_from_odometry",
     "stamp_s",
     "tracks_from_msg",
@@ -250,3 +252,35 @@ def image_from_msg(msg: Any) -> np.ndarray[Any, Any]:
         return image_to_array(msg)
     except MessageLayoutError as err:
         raise ScoringError(str(err)) from err
+
+
+def object_states_from_msg(msg: Any) -> ObjectStateRecord:
+    """``uav_msgs/ObjectStateArray`` -> rows ``(instance_id, x, y, z, yaw, length, width, height)``."""
+    rows = []
+    moving = []
+    for o in msg.objects:
+        q = o.pose.orientation
+        yaw = math.atan2(
+            2.0 * (float(q.w) * float(q.z) + float(q.x) * float(q.y)), 1.0 - 2.0 * (float(q.y) ** 2 + float(q.z) ** 2)
+        )
+        p = o.pose.position
+        rows.append(
+            (
+                float(o.instance_id),
+                float(p.x),
+                float(p.y),
+                float(p.z),
+                yaw,
+                float(o.size.x),
+                float(o.size.y),
+                float(o.size.z),
+            )
+        )
+        moving.append(bool(o.moving))
+    return ObjectStateRecord(
+        stamp_s(msg.header.stamp),
+        np.array(rows, dtype=np.float64).reshape(-1, 8),
+        np.array(moving, dtype=bool),
+        tuple(str(o.name) for o in msg.objects),
+        tuple(str(o.class_name) for o in msg.objects),
+    )

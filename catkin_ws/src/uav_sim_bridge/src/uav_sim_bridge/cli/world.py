@@ -4,7 +4,8 @@
     uav-world info [WORLD]                      # counts, bounds, hash
     uav-world hash [WORLD]                      # just the hash (same seed -> same hash)
     uav-world voxels [WORLD] --resolution 0.5 --out keys.npy
-    uav-world render [WORLD] --x 0 --y 0 --alt 50 [--yaw 0] [--camera nadir|forward] --out DIR
+    uav-world render [WORLD] --x 0 --y 0 --alt 50 [--yaw 0] [--camera nadir|forward] [--environment PRESET] --out DIR
+    uav-world render [WORLD] --sheet docs/images/world_contact_sheet.png   # every preset, every pose and vehicle
     uav-world overview [WORLD] --out overview.png
 
 WORLD is a name under config/worlds (default: ``default``) or a path to a world YAML.
@@ -24,11 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from uav_common.config import ConfigError
+from uav_common.config import ConfigError, from_mapping
 from uav_common.exit_codes import ExitCode, exit_code_for
-from uav_sim_bridge.config import default_cameras, resolve_world_path
+from uav_sim_bridge.config import default_cameras, resolve_environment, resolve_world_path
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.camera import CameraModel, look_at
+from uav_sim_bridge.core.camera_effects import CameraEffects, camera_rng
+from uav_sim_bridge.core.environment import EnvironmentConfig
+from uav_sim_bridge.core.lighting import lighting_for
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import load_world_config
@@ -72,6 +76,14 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--alt", type=float, default=50.0, help="height above the ground under (x, y)")
     r.add_argument("--yaw", type=float, default=0.0, help="vehicle heading, degrees counter-clockwise from east")
     r.add_argument("--camera", choices=sorted(default_cameras()), default="nadir")
+    r.add_argument("--environment", default="clean", help="environment preset (config/environments), default clean")
+    r.add_argument(
+        "--sheet",
+        type=Path,
+        metavar="PNG",
+        help="instead: the contact sheet (one view under every preset; each person pose and vehicle type "
+        "from 30, 60 and 100 m) into this PNG",
+    )
     r.add_argument("--out", type=Path, default=Path("."))
     o = sub.add_parser("overview", help="a bird's-eye PNG of the whole world")
     common(o)
@@ -108,14 +120,27 @@ def _save_png(path: Path, array: np.ndarray) -> None:
 
 
 def _render(args: argparse.Namespace, world: World) -> list[Path]:
-    from uav_sim_bridge.render import Renderer  # noqa: PLC0415
+    from uav_sim_bridge.render import RenderedFrame, Renderer  # noqa: PLC0415
 
+    if args.sheet is not None:
+        from uav_sim_bridge.cli.contact_sheet import contact_sheet  # noqa: PLC0415
+
+        return [contact_sheet(world, args.sheet)]
+    env = from_mapping(EnvironmentConfig, resolve_environment({"preset": args.environment}), source=args.environment)
     cam = CameraModel.from_config(args.camera, default_cameras()[args.camera])
     ground = float(world.height_at(args.x, args.y))
     base = RigidTransform.from_rpy([args.x, args.y, ground + args.alt], yaw_rad=np.radians(args.yaw))
-    renderer = Renderer(world)
+    renderer = Renderer(world, lighting=lighting_for(env, world.config.latitude_deg))
     try:
         frame = renderer.render(cam, cam.optical_pose(base))
+        fx = env.effects_for(args.camera)
+        if fx.changes_pixels:
+            effects = CameraEffects(
+                fx, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, camera_rng(env.seed, args.camera)
+            )
+            frame = RenderedFrame(
+                effects.apply(frame.color_rgb, frame.depth_m, 0.0).color_rgb, frame.depth_m, frame.instance_id
+            )
     finally:
         renderer.close()
     stem = args.out / f"{args.camera}_{args.x:g}_{args.y:g}_{args.alt:g}"

@@ -83,6 +83,13 @@ class CollisionChecker:
         if instance_id in self._dynamic:
             self._poses[instance_id] = pose
 
+    def set_object_shape(self, instance_id: int, local_triangles_m: npt.ArrayLike) -> None:
+        """New ``(N, 3, 3)`` triangles of a person or vehicle in its local frame (another pose)."""
+        if instance_id in self._dynamic:
+            local = np.asarray(local_triangles_m, dtype=np.float64).reshape(-1, 3, 3)
+            self._dynamic[instance_id] = local
+            self._dyn_radius[instance_id] = float(np.max(np.linalg.norm(local.reshape(-1, 3), axis=1)))
+
     def _dynamic_contacts(
         self, p: npt.NDArray[np.float64], r: float
     ) -> list[tuple[int, tuple[float, float, float], tuple[float, float, float]]]:

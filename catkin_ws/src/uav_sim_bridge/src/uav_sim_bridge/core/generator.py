@@ -15,7 +15,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from uav_sim_bridge.core import figures
 from uav_sim_bridge.core import mesh as prim
+from uav_sim_bridge.core.figures import VEHICLE_SIZE_M, PersonPose, VehicleType
 from uav_sim_bridge.core.mesh import LOD_ALWAYS, LOD_FAR, LOD_NEAR, MeshAccumulator, MeshArrays
 from uav_sim_bridge.core.objects import ObjectPose, WorldObject
 from uav_sim_bridge.core.roads import Raster, RoadNetwork, pick_village_sites, plan_roads, polyline_raster_distance
@@ -32,6 +34,8 @@ MAX_INSTANCE_ID = 65534  # instance images are 16UC1 and 0 is the sky
 ROAD_LIFT_M = 0.12  # road surface above the (conformed) terrain
 _ROAD_SINK_M = 0.05  # terrain under a road is lowered by this much below the smooth road bed
 _RASTER_RES_M = 1.0
+#: A vehicle parked at the kerb stands this far onto the road (the rest on the verge), clear of both lanes.
+KERB_OVERLAP_M = 0.2
 
 
 @dataclass(frozen=True)
@@ -75,7 +79,16 @@ class _Ids:
         self._next = TERRAIN_INSTANCE_ID
         self._per_class: dict[ObjectClass, int] = {}
 
-    def add(self, cls: ObjectClass, pose: ObjectPose, size_m: tuple[float, float, float], name: str = "") -> int:
+    def add(
+        self,
+        cls: ObjectClass,
+        pose: ObjectPose,
+        size_m: tuple[float, float, float],
+        name: str = "",
+        *,
+        kind: str = "",
+        shape: tuple[float, ...] = (),
+    ) -> int:
         if self._next > MAX_INSTANCE_ID:
             msg = f"the world has more than {MAX_INSTANCE_ID} objects; reduce forest.max_trees or other counts"
             raise WorldError(msg)
@@ -83,7 +96,7 @@ class _Ids:
         self._next += 1
         k = self._per_class.get(cls, 0)
         self._per_class[cls] = k + 1
-        self.objects.append(WorldObject(iid, cls, name or f"{cls.label}_{k:04d}", pose, size_m))
+        self.objects.append(WorldObject(iid, cls, name or f"{cls.label}_{k:04d}", pose, size_m, kind, shape))
         return iid
 
 
@@ -288,70 +301,47 @@ def _footprint_distance(footprints: list[FloatArray], origin: tuple[float, float
     return Raster(origin, _RASTER_RES_M, dist)
 
 
-_Part = tuple[FloatArray, npt.NDArray[np.int64], FloatArray]  # vertices, face template, colors
+def _vehicle_types(cfg: WorldConfig, n: int, rng: np.random.Generator) -> npt.NDArray[np.int64]:
+    labels = list(cfg.vehicles.types)
+    w = np.array([cfg.vehicles.types[k] for k in labels], dtype=np.float64)
+    picks = rng.choice(len(labels), size=n, p=w / w.sum()) if n else np.zeros(0, np.int64)
+    return np.array([int(VehicleType.from_label(labels[int(i)])) for i in picks], dtype=np.int64)
 
 
-def _person_meshes(positions: FloatArray, yaws: FloatArray, rng: np.random.Generator) -> list[_Part]:
-    k = len(positions)
-    shirts = np.array([[0.85, 0.15, 0.12], [0.12, 0.35, 0.85], [0.95, 0.75, 0.10], [0.20, 0.65, 0.25],
-                       [0.95, 0.45, 0.05], [0.55, 0.20, 0.60], [0.92, 0.92, 0.92]])  # fmt: skip
-    legs_c = np.array([[0.15, 0.18, 0.30], [0.25, 0.22, 0.20], [0.10, 0.10, 0.12]])
-    up = np.array([0.0, 0.0, 1.0])
-    legs = prim.boxes(positions, np.tile([0.30, 0.36, 0.82], (k, 1)), yaws)
-    torso = prim.boxes(positions + 0.82 * up, np.tile([0.28, 0.46, 0.62], (k, 1)), yaws)
-    head = prim.boxes(positions + 1.46 * up, np.tile([0.22, 0.20, 0.26], (k, 1)), yaws)
-    return [
-        (*legs, legs_c[rng.integers(len(legs_c), size=k)]),
-        (*torso, shirts[rng.integers(len(shirts), size=k)]),
-        (*head, np.tile([0.80, 0.62, 0.48], (k, 1))),
-    ]
-
-
-def _vehicle_meshes(positions: FloatArray, yaws: FloatArray, rng: np.random.Generator) -> list[_Part]:
-    k = len(positions)
-    paints = np.array([[0.75, 0.08, 0.08], [0.10, 0.22, 0.65], [0.92, 0.92, 0.92], [0.12, 0.12, 0.13],
-                       [0.88, 0.70, 0.10], [0.45, 0.47, 0.50], [0.15, 0.40, 0.20]])  # fmt: skip
-    paint = paints[rng.integers(len(paints), size=k)]
-    c, s = np.cos(yaws), np.sin(yaws)
-
-    def at(dx: float, dy: float, dz: float) -> FloatArray:
-        return np.stack([positions[:, 0] + c * dx - s * dy, positions[:, 1] + s * dx + c * dy, positions[:, 2] + dz], 1)
-
-    body = prim.boxes(at(0, 0, 0.32), np.tile([4.3, 1.8, 0.78], (k, 1)), yaws, bottom=True)
-    cabin = prim.boxes(at(-0.25, 0, 1.10), np.tile([2.3, 1.62, 0.62], (k, 1)), yaws)
-    parts = [(*body, paint), (*cabin, paint * 0.55 + 0.05)]
-    for dx in (-1.35, 1.35):
-        for dy in (-0.78, 0.78):
-            wheel = prim.boxes(at(dx, dy, 0.0), np.tile([0.64, 0.24, 0.64], (k, 1)), yaws)
-            parts.append((*wheel, np.tile([0.06, 0.06, 0.06], (k, 1))))
-    return parts
-
-
-def _place_vehicles(site: _Site, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
+def _place_vehicles(site: _Site, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, npt.NDArray[np.int64]]:
+    """Positions ``(N, 3)``, headings and :class:`VehicleType` values of the vehicles: parked at the kerb of a
+    road (mostly on the verge, aligned with the road, clear of both lanes) or anywhere in a village."""
     cfg, terrain, roads, road_dist, bld_dist = site.cfg, site.terrain, site.roads, site.road_dist, site.bld_dist
     assert bld_dist is not None
+    types = _vehicle_types(cfg, cfg.vehicles.count, rng)
     pos: list[tuple[float, float, float]] = []
     yaw: list[float] = []
+    kinds: list[int] = []
     x_min, y_min, x_max, y_max = terrain.bounds_m
     lines = [p for p in roads.polylines if len(p) >= 3]
     for _ in range(cfg.vehicles.count * 50):
         if len(pos) >= cfg.vehicles.count:
             break
+        vtype = VehicleType(int(types[len(pos)]))
+        length, width, _ = VEHICLE_SIZE_M[vtype]
         if lines and rng.random() < 0.65:
             line = lines[int(rng.integers(len(lines)))]
             k = int(rng.integers(1, len(line) - 1))
             t = line[k + 1] - line[k - 1]
             heading = math.atan2(t[1], t[0])
-            lane = 1.5 if rng.random() < 0.5 else -1.5
-            heading += 0.0 if lane > 0 else math.pi
-            x = line[k, 0] + math.sin(heading) * 1.5
-            y = line[k, 1] - math.cos(heading) * 1.5
-            z = float(_road_surface_height(terrain, np.array(x), np.array(y)))
+            side = 1.0 if rng.random() < 0.5 else -1.0  # right (1) or left kerb, facing the traffic of that side
+            heading += 0.0 if side > 0 else math.pi
+            offset = roads.width_m / 2.0 + width / 2.0 - KERB_OVERLAP_M
+            x = line[k, 0] + math.sin(heading) * offset
+            y = line[k, 1] - math.cos(heading) * offset
+            z = float(terrain.height_at(x, y))
+            if road_dist.sample(x, y) < roads.width_m / 2.0 + width / 2.0 - KERB_OVERLAP_M - 0.5:
+                continue  # another road passes by (a junction): this kerb is someone's lane
         elif len(roads.villages_m):
             v = roads.villages_m[int(rng.integers(len(roads.villages_m)))]
             ang, rad = rng.uniform(0, 2 * math.pi), cfg.buildings.village_radius_m * math.sqrt(rng.random())
             x, y = v[0] + rad * math.cos(ang), v[1] + rad * math.sin(ang)
-            if road_dist.sample(x, y) < roads.width_m / 2 + 2.0 or bld_dist.sample(x, y) < 3.5:
+            if road_dist.sample(x, y) < roads.width_m / 2 + length / 2 + 0.5 or bld_dist.sample(x, y) < length / 2 + 1:
                 continue
             heading = rng.uniform(-math.pi, math.pi)
             z = float(terrain.height_at(x, y))
@@ -359,13 +349,18 @@ def _place_vehicles(site: _Site, rng: np.random.Generator) -> tuple[FloatArray, 
             break
         if not (x_min + 5 < x < x_max - 5 and y_min + 5 < y < y_max - 5):
             continue
-        if math.hypot(x, y) < cfg.home_clear_radius_m + 4.0 or bld_dist.sample(x, y) < 3.0:
+        if math.hypot(x, y) < cfg.home_clear_radius_m + length / 2 + 2.0 or bld_dist.sample(x, y) < width / 2 + 1.5:
             continue
-        if any(math.hypot(x - px, y - py) < 7.0 for px, py, _ in pos):
+        if any(math.hypot(x - px, y - py) < 9.0 for px, py, _ in pos):
             continue
         pos.append((x, y, z))
         yaw.append(heading)
-    return np.array(pos, dtype=np.float64).reshape(-1, 3), np.array(yaw, dtype=np.float64)
+        kinds.append(int(vtype))
+    return (
+        np.array(pos, dtype=np.float64).reshape(-1, 3),
+        np.array(yaw, dtype=np.float64),
+        np.array(kinds, dtype=np.int64),
+    )
 
 
 def _place_people(site: _Site, taken: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
@@ -406,27 +401,78 @@ def _place_people(site: _Site, taken: FloatArray, rng: np.random.Generator) -> t
     return np.array(pos, dtype=np.float64).reshape(-1, 3), yaws
 
 
-def _add_dynamic(
-    acc: MeshAccumulator,
-    ids: _Ids,
-    cls: ObjectClass,
-    placed: tuple[FloatArray, FloatArray],
-    *,
-    size: tuple[float, float, float],
-    rng: np.random.Generator,
+def _person_poses(cfg: WorldConfig, n: int, rng: np.random.Generator) -> npt.NDArray[np.int64]:
+    labels = list(cfg.people.poses)
+    w = np.array([cfg.people.poses[k] for k in labels], dtype=np.float64)
+    picks = rng.choice(len(labels), size=n, p=w / w.sum()) if n else np.zeros(0, np.int64)
+    return np.array([int(PersonPose.from_label(labels[int(i)])) for i in picks], dtype=np.int64)
+
+
+def _add_people(
+    acc: MeshAccumulator, ids: _Ids, cfg: WorldConfig, placed: tuple[FloatArray, FloatArray], rng: np.random.Generator
 ) -> None:
+    """Articulated people (:mod:`.figures`) in seeded poses, heights, builds and clothes."""
     positions, yaws = placed
-    if len(positions) == 0:
+    n = len(positions)
+    if n == 0:
         return
+    poses = _person_poses(cfg, n, rng)
+    lo, hi = cfg.people.height_m
+    # rounded as the object records store them: the mesh and the box are built from exactly those values
+    heights = np.round(np.clip(rng.normal((lo + hi) / 2, (hi - lo) / 4, n), lo, hi), 4)
+    builds = np.round(rng.uniform(0.88, 1.18, n), 4)
+    colors = figures.random_person_colors(n, rng)
+    sizes = figures.person_boxes(heights, builds, poses)
     iids = np.array(
         [
-            ids.add(cls, ObjectPose((float(p[0]), float(p[1]), float(p[2])), float(a)), size)
-            for p, a in zip(positions, yaws, strict=True)
+            ids.add(
+                ObjectClass.PERSON,
+                ObjectPose((float(p[0]), float(p[1]), float(p[2])), float(a)),
+                (float(sz[0]), float(sz[1]), float(sz[2])),
+                kind=PersonPose(int(ps)).label,
+                shape=(float(h), float(b)),
+            )
+            for p, a, sz, ps, h, b in zip(positions, yaws, sizes, poses, heights, builds, strict=True)
         ]
     )
-    maker = _person_meshes if cls is ObjectClass.PERSON else _vehicle_meshes
-    for verts, faces, colors in maker(positions, yaws, rng):
-        acc.add_flat(verts, faces.astype(np.int64), colors, iids)
+    local = figures.person_vertices(heights, builds, poses)
+    faces, roles = figures.person_faces()
+    world = np.stack(
+        [ObjectPose(tuple(p), float(a)).to_world(v) for p, a, v in zip(positions, yaws, local, strict=True)]
+    )
+    acc.add_flat(world, faces, figures.face_colors(roles, colors), iids)
+
+
+def _add_vehicles(
+    acc: MeshAccumulator,
+    ids: _Ids,
+    placed: tuple[FloatArray, FloatArray, npt.NDArray[np.int64]],
+    rng: np.random.Generator,
+) -> None:
+    """Cars, vans and trucks (:mod:`.figures`) in seeded colours."""
+    positions, yaws, types = placed
+    n = len(positions)
+    if n == 0:
+        return
+    colors = figures.random_vehicle_colors(n, rng)
+    iids = np.array(
+        [
+            ids.add(
+                ObjectClass.VEHICLE,
+                ObjectPose((float(p[0]), float(p[1]), float(p[2])), float(a)),
+                VEHICLE_SIZE_M[VehicleType(int(t))],
+                kind=VehicleType(int(t)).label,
+            )
+            for p, a, t in zip(positions, yaws, types, strict=True)
+        ]
+    )
+    for vtype in VehicleType:
+        sel = np.flatnonzero(types == int(vtype))
+        if len(sel) == 0:
+            continue
+        verts, faces, roles = figures.vehicle_template(vtype)
+        world = np.stack([ObjectPose(tuple(positions[i]), float(yaws[i])).to_world(verts) for i in sel])
+        acc.add_flat(world, faces, figures.face_colors(roles, colors[sel]), iids[sel])
 
 
 def _place_trees(site: _Site, avoid: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
@@ -634,8 +680,8 @@ def build_world_parts(cfg: WorldConfig, inputs: WorldInputs | None = None) -> Wo
     avoid = np.concatenate([vehicles[0][:, :2], people[0][:, :2]])
     tree_pos, forest_density = _place_trees(site, avoid, rng_trees)
     _add_trees(acc, ids, cfg, tree_pos, rng_trees)
-    _add_dynamic(acc, ids, ObjectClass.PERSON, people, size=(0.46, 0.46, 1.72), rng=rng_mesh)
-    _add_dynamic(acc, ids, ObjectClass.VEHICLE, vehicles, size=(4.3, 1.8, 1.72), rng=rng_mesh)
+    _add_people(acc, ids, cfg, people, rng_mesh)
+    _add_vehicles(acc, ids, vehicles, rng_mesh)
     _add_custom_objects(acc, ids, cfg.custom_objects, inputs.meshes, terrain)
 
     thr = float(np.quantile(forest_density, 1.0 - cfg.forest.coverage)) if cfg.forest.coverage > 0 else np.inf

@@ -241,7 +241,7 @@ class MeshAccumulator:
         Args:
             vertices_m: ``(K, n_vertices, 3)`` positions.
             faces: ``(n_faces, 3)`` template shared by all instances.
-            colors: ``(K, 3)`` or ``(3,)`` color per instance.
+            colors: ``(K, 3)`` or ``(3,)`` color per instance, or ``(K, n_faces, 3)`` per face.
             instance_ids: ``(K,)`` instance id per instance.
             lod: ``LOD_*`` class of all the added faces.
         """
@@ -254,12 +254,16 @@ class MeshAccumulator:
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True) + 1e-12
         verts = tri.reshape(-1, 3)
         normals = np.repeat(normal.reshape(-1, 3), 3, axis=0)
-        col = np.broadcast_to(np.asarray(colors, dtype=np.float32).reshape(-1, 3), (k, 3))
+        c = np.asarray(colors, dtype=np.float32)
         ids = np.broadcast_to(np.asarray(instance_ids, dtype=np.uint32).reshape(-1), (k,))
         per = nf * 3
+        if c.ndim == 3:  # per face
+            vert_colors = np.repeat(np.broadcast_to(c, (k, nf, 3)).reshape(-1, 3), 3, axis=0)
+        else:
+            vert_colors = np.repeat(np.broadcast_to(c.reshape(-1, 3), (k, 3)), per, axis=0)
         self._v.append(verts)
         self._n.append(normals)
-        self._c.append(np.repeat(col, per, axis=0).astype(np.float32))
+        self._c.append(vert_colors.astype(np.float32))
         self._i.append(np.repeat(ids, per).astype(np.uint32))
         self._f.append(np.arange(k * per, dtype=np.int64).reshape(-1, 3) + self._count)
         self._lod.append(np.full(k * nf, lod, dtype=np.uint8))

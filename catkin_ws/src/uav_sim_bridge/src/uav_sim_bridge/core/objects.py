@@ -11,7 +11,7 @@ import numpy.typing as npt
 
 from uav_sim_bridge.core.world_config import ObjectClass
 
-__all__ = ["DYNAMIC_CLASSES", "ObjectPose", "WorldObject"]
+__all__ = ["DYNAMIC_CLASSES", "ObjectPose", "ObjectState", "WorldObject"]
 
 # Classes whose objects can be moved at run time (their meshes are re-posed by the renderer).
 DYNAMIC_CLASSES = frozenset({ObjectClass.PERSON, ObjectClass.VEHICLE})
@@ -46,7 +46,11 @@ class WorldObject:
         object_class: semantic class.
         name: unique readable name (``tree_0042``).
         pose: base centre on the ground and heading, in ``map``.
-        size_m: extents ``(length along local x, width along local y, height)``.
+        size_m: extents ``(length along local x, width along local y, height)``: the 3D box is centred on
+            the pose's x, y and stands on its z.
+        kind: what the object is within its class, "" if nothing more is known: a person's pose
+            (``standing``, ``walking``, ``sitting``, ``lying``), a vehicle's type (``car``, ``van``, ``truck``).
+        shape: the parameters its mesh was built from: a person's ``(height_m, build)``; empty otherwise.
     """
 
     instance_id: int
@@ -54,6 +58,8 @@ class WorldObject:
     name: str
     pose: ObjectPose
     size_m: tuple[float, float, float]
+    kind: str = ""
+    shape: tuple[float, ...] = ()
 
     @property
     def is_dynamic(self) -> bool:
@@ -73,6 +79,8 @@ class WorldObject:
             "position_m": [float(v) for v in self.pose.position_m],
             "yaw_rad": float(self.pose.yaw_rad),
             "size_m": [float(v) for v in self.size_m],
+            "kind": self.kind,
+            "shape": [float(v) for v in self.shape],
         }
 
     @staticmethod
@@ -85,4 +93,21 @@ class WorldObject:
             name=str(data["name"]),
             pose=ObjectPose((px, py, pz), float(data["yaw_rad"])),
             size_m=(sx, sy, sz),
+            kind=str(data.get("kind", "")),
+            shape=tuple(float(v) for v in data.get("shape", ())),
         )
+
+
+@dataclass(frozen=True)
+class ObjectState:
+    """A person or vehicle at one instant (the ground truth of moving objects).
+
+    Attributes:
+        obj: the object with its current pose, kind and box.
+        velocity_mps: map (ENU) velocity.
+        moving: it follows a path (False: put somewhere by a request and left there).
+    """
+
+    obj: WorldObject
+    velocity_mps: tuple[float, float, float]
+    moving: bool

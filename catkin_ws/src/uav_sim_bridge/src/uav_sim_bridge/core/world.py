@@ -38,7 +38,9 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 # Bump when the generator's output changes for the same config (invalidates caches).
-GENERATOR_VERSION = 3  # 3: worlds without forest have finite terrain colours
+GENERATOR_VERSION = (
+    4  # 4: articulated people in poses, car/van/truck vehicles parked at the kerb (3: finite colours without forest)
+)
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,12 +10,15 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 from uav_common.config import config_errors_as, load_config
 from uav_common.validate import require_non_negative, require_positive
 from uav_sim_bridge.errors import SimBridgeConfigError
 
 __all__ = [
+    "PERSON_POSES",
+    "VEHICLE_TYPES",
     "BuildingsConfig",
     "CustomObjectConfig",
     "ForestConfig",
@@ -153,20 +156,76 @@ class ForestConfig:
         require_non_negative("max_trees", self.max_trees)
 
 
+PERSON_POSES = ("standing", "walking", "sitting", "lying")
+VEHICLE_TYPES = ("car", "van", "truck")
+
+
+def _weights(name: str, weights: dict[str, float], known: tuple[str, ...]) -> None:
+    unknown = sorted(set(weights) - set(known))
+    if unknown:
+        msg = f"{name} has unknown entries {unknown}; known: {', '.join(known)}"
+        raise ValueError(msg)
+    if any(not w >= 0 for w in weights.values()) or not sum(weights.values()) > 0:
+        msg = f"{name} weights must be >= 0 with a positive sum, got {weights}"
+        raise ValueError(msg)
+
+
+def _speed_range(name: str, speeds: tuple[float, float], limit: float) -> None:
+    lo, hi = speeds
+    if not 0 < lo <= hi <= limit:
+        msg = f"{name} must be [min, max] with 0 < min <= max <= {limit:g} m/s, got {list(speeds)}"
+        raise ValueError(msg)
+
+
 @dataclass(frozen=True)
 class PeopleConfig:
+    """People: articulated figures in seeded poses, sizes and clothes; ``moving`` of them walk.
+
+    ``poses`` weighs the poses of the people who do not walk. Walkers follow ``motion``:
+    ``road`` (along a road's shoulder), ``random`` (a seeded loop of random waypoints within
+    ``wander_radius_m`` of where they stand, around buildings and trees) or ``mixed`` (road
+    walkers near a road, the rest random), at a seeded speed in ``speed_mps``. Which people walk,
+    and their paths, are chosen when the simulation starts (``uav_sim_bridge.core.motion``).
+    """
+
     count: int = 30
+    poses: dict[str, float] = field(default_factory=lambda: {"standing": 0.6, "sitting": 0.2, "lying": 0.2})
+    height_m: tuple[float, float] = (1.55, 1.95)
+    moving: int = 0
+    speed_mps: tuple[float, float] = (1.0, 1.6)
+    motion: Literal["mixed", "road", "random"] = "mixed"
+    wander_radius_m: float = 40.0
 
     def __post_init__(self) -> None:
         require_non_negative("count", self.count)
+        _weights("poses", self.poses, PERSON_POSES)
+        if not 1.0 <= self.height_m[0] <= self.height_m[1] <= 2.3:
+            msg = f"height_m must be [min, max] within [1.0, 2.3] m, got {list(self.height_m)}"
+            raise ValueError(msg)
+        if not 0 <= self.moving <= self.count:
+            msg = f"moving must be in [0, count = {self.count}], got {self.moving}"
+            raise ValueError(msg)
+        _speed_range("speed_mps", self.speed_mps, 4.0)
+        require_positive("wander_radius_m", self.wander_radius_m)
 
 
 @dataclass(frozen=True)
 class VehiclesConfig:
+    """Vehicles: cars, vans and trucks (``types`` weighs them) in seeded colours, parked at the kerb of a
+    road or in a village; ``moving`` of them drive along the roads at a seeded speed in ``speed_mps``."""
+
     count: int = 20
+    types: dict[str, float] = field(default_factory=lambda: {"car": 0.6, "van": 0.25, "truck": 0.15})
+    moving: int = 0
+    speed_mps: tuple[float, float] = (7.0, 13.0)
 
     def __post_init__(self) -> None:
         require_non_negative("count", self.count)
+        _weights("types", self.types, VEHICLE_TYPES)
+        if not 0 <= self.moving <= self.count:
+            msg = f"moving must be in [0, count = {self.count}], got {self.moving}"
+            raise ValueError(msg)
+        _speed_range("speed_mps", self.speed_mps, 40.0)
 
 
 @dataclass(frozen=True)
@@ -205,6 +264,8 @@ class WorldConfig:
     name: str = "default"
     seed: int = 0
     home_clear_radius_m: float = 15.0
+    #: Where on Earth the world lies (for the sun; the SITL's home latitude, ``config/sitl.yaml``, by default).
+    latitude_deg: float = 47.397742
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
     roads: RoadsConfig = field(default_factory=RoadsConfig)
     buildings: BuildingsConfig = field(default_factory=BuildingsConfig)
@@ -219,6 +280,21 @@ class WorldConfig:
             raise ValueError(msg)
         if self.home_clear_radius_m < 15.0:
             msg = f"home_clear_radius_m must be >= 15 (architecture contract), got {self.home_clear_radius_m}"
+            raise ValueError(msg)
+        if not -90.0 <= self.latitude_deg <= 90.0:
+            msg = f"latitude_deg must be in [-90, 90], got {self.latitude_deg}"
+            raise ValueError(msg)
+        if self.roads.villages == 0 and self.vehicles.moving > 0:
+            msg = (
+                f"vehicles.moving is {self.vehicles.moving} but the world has no roads to drive on "
+                "(roads.villages is 0): set vehicles.moving to 0 or add villages"
+            )
+            raise ValueError(msg)
+        if self.roads.villages == 0 and self.people.moving > 0 and self.people.motion == "road":
+            msg = (
+                f"people.motion is road and people.moving is {self.people.moving}, but the world has no roads "
+                "(roads.villages is 0): use people.motion random or mixed, or add villages"
+            )
             raise ValueError(msg)
 
 

@@ -22,6 +22,8 @@ Publishes:
     /detections/<cam>/ground_truth (vision_msgs/Detection2DArray): the same boxes as a box-only detector
         (class ids from config/detection_classes.yaml, score 1; no ids, no positions): the detector contract.
     /sim/collision (uav_msgs/Collision): the vehicle touched an object (also sent to the SITL).
+    /sim/object_states (uav_msgs/ObjectStateArray): the moving (and moved) people and vehicles: pose, kind,
+        box, velocity, at ``publish.object_states_rate_hz`` of simulation time (their ground-truth tracks).
     /sim/world_mesh (visualization_msgs/Marker, latched): the world mesh for rviz.
 
 Services:
@@ -80,9 +82,9 @@ from uav_common.ros.arrays import depth_cloud_msg, image_msg
 from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
-from uav_msgs.msg import Collision, DetectionArray, SimState
+from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState
 from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
-from uav_sim_bridge.config import SimBridgeConfig, bridge_config
+from uav_sim_bridge.config import SimBridgeConfig, bridge_config, resolve_environment
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
@@ -172,6 +174,10 @@ def load_node_config(params: BridgeParams) -> SimBridgeConfig:
             det = dict(data.get("detections", {}))
             det["cameras"] = [c for c in det.get("cameras", ["forward", "nadir"]) if c in names]
             data["detections"] = det
+            env = resolve_environment(data.get("environment"))
+            if isinstance(env.get("cameras"), dict):
+                env["cameras"] = {c: v for c, v in env["cameras"].items() if c in names or c == "default"}
+                data["environment"] = env
         robot_path = Path(params.robot_description).expanduser() if params.robot_description else None
         robot = load_robot_description(robot_path or config_file("robot.yaml"))
         return bridge_config(data, robot, source=f"{path} (+ ~params)")
@@ -230,7 +236,7 @@ class _MoveRequest:
 class SimBridgeNode:
     """The node (see module docstring). Create and spin it in the same thread."""
 
-    def __init__(self, cfg: SimBridgeConfig, params: BridgeParams) -> None:
+    def __init__(self, cfg: SimBridgeConfig, params: BridgeParams) -> None:  # noqa: PLR0915 - start-up, step by step
         self.cfg = cfg
         t0 = time.monotonic()
         world_cfg = load_world_config(cfg.world_yaml())
@@ -247,7 +253,25 @@ class SimBridgeNode:
         self.classes = _detection_classes(cfg)
         self.renderer = Renderer(self.world, cfg.render)
         rospy.loginfo("renderer: %s", self.renderer.gl_renderer)
-        self.engine = BridgeEngine(cfg, self.world, self.renderer)
+        try:
+            self.engine = BridgeEngine(cfg, self.world, self.renderer)
+        except (SimBridgeConfigError, ValueError) as err:
+            source = params.config_file or "config/sim_bridge.yaml"
+            msg = f"{source} (+ ~overrides): {err}"
+            raise SimBridgeConfigError(msg) from err
+        env, light = cfg.environment, self.engine.lighting
+        rospy.loginfo(
+            "environment %s: sun azimuth %.0f, elevation %.1f deg, shadows %s, overcast %.2f, visibility %s; "
+            "camera effects on %s; %d moving objects",
+            env.preset,
+            light.azimuth_deg,
+            light.elevation_deg,
+            light.shadows,
+            env.overcast,
+            f"{env.visibility_m:.0f} m" if env.visibility_m is not None else "clear",
+            sorted(self.engine.effects) or "none",
+            len(self.engine.motion.movers),
+        )
         self.counters = LinkCounters()
         sl = cfg.sim_link
         self.link = SimLinkClient(
@@ -309,6 +333,7 @@ class SimBridgeNode:
             if cam in self.engine.cameras
         }
         self.pub_collision = rospy.Publisher("/sim/collision", Collision, queue_size=10, latch=True)
+        self.pub_objects = rospy.Publisher("/sim/object_states", ObjectStateArray, queue_size=10)
         self.tf = tf2_ros.TransformBroadcaster()
         self.tf_static = tf2_ros.StaticTransformBroadcaster()
         self.cam_pubs: dict[str, _CameraPubs] = {}
@@ -583,7 +608,9 @@ class SimBridgeNode:
             self.tf.sendTransform(conv.transform_stamped(t, cfg.map_frame, cfg.base_frame, out.published_pose))
         self.pub_odom.publish(conv.odometry(state, cfg.map_frame, cfg.base_frame))
         for cam_out in out.cameras:
-            self._publish_camera(t, cam_out)
+            self._publish_camera(cam_out.t_capture_s, cam_out)
+        if out.objects is not None:
+            self.pub_objects.publish(conv.object_states_msg(t, cfg.map_frame, out.objects))
         self._publish_contacts(out)
         if out.terrain is not None:
             participant = cfg.lockstep.role == LockstepRole.PARTICIPANT
@@ -684,6 +711,7 @@ class SimBridgeNode:
 
     def close(self) -> None:
         self.link.close()
+        self.engine.close()
         self.renderer.close()
 
 

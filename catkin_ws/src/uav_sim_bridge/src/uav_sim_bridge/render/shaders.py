@@ -4,9 +4,18 @@ Outputs (``location``): 0 RGBA8 color, 1 R32F z-depth in metres, 2 R32UI instanc
 The instance-only pass (``INSTANCE_*``) writes just the R32UI ids at location 0:
 ground-truth detections need nothing else, and shading is what costs.
 The color is the vertex base color times a world-space value-noise texture (three
-octaves, faded out where a texel gets smaller than a pixel), lit by a sun and a sky
-term, with a little distance haze.  Around home the terrain gets a concrete landing
-pad with an "H".
+octaves, faded out where a texel gets smaller than a pixel), lit by a sun, a sky and an
+ambient term (colours from :class:`~uav_sim_bridge.core.lighting.Lighting`), faded into
+haze or fog with distance.  Around home the terrain gets a concrete landing pad with an "H".
+
+Shadows: the world seen from the sun is a depth map (:data:`DEPTH_VS`): the static world is rendered
+into it once per sun position, and the people and vehicles are drawn into it where they stand
+whenever they move. On llvmpipe every texture lookup in the main pass costs 15-25 % of a frame, so
+the main pass does none: with ``#define SHADOWS`` it writes, in the colour's alpha, the share of
+each pixel's light that comes from the sun. A reduced-resolution pass (:data:`SHADOW_FS`, one pixel
+per ``shadow_step`` x ``shadow_step`` block) then puts each block back into the world from its z-depth
+and looks it up in the shadow map (hardware 2x2 percentage-closer filtering); the renderer
+interpolates that back to full resolution and takes the sun's share away where it is shadowed.
 
 Speed (Mesa llvmpipe runs every fragment shader on the CPU, and a branch costs both of its
 sides): the haze is computed per vertex (it changes by < 1e-4 across a triangle), and the
@@ -21,7 +30,8 @@ MAIN_VS = """
 uniform mat4 u_mvp;
 uniform mat4 u_view;
 uniform vec3 u_eye;
-uniform float u_haze_m;
+uniform float u_haze_per_m;
+uniform float u_haze_max;
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec3 in_col;
@@ -38,7 +48,7 @@ void main() {
     v_col = in_col;
     v_inst = in_inst;
     v_z = -(u_view * vec4(in_pos, 1.0)).z;
-    v_haze = 1.0 - exp(-length(in_pos - u_eye) / u_haze_m);
+    v_haze = u_haze_max * (1.0 - exp(-length(in_pos - u_eye) * u_haze_per_m));
     gl_Position = u_mvp * vec4(in_pos, 1.0);
 }
 """
@@ -46,6 +56,9 @@ void main() {
 MAIN_FS = """
 #version 330
 uniform vec3 u_sun;
+uniform vec3 u_sun_rgb;
+uniform vec3 u_sky_rgb;
+uniform vec3 u_ambient_rgb;
 uniform float u_focal_px;
 uniform float u_texture_gain;
 uniform float u_pad_half_m;
@@ -106,8 +119,17 @@ void main() {
 #endif
     float sun = max(dot(n, u_sun), 0.0);
     float sky = 0.5 + 0.5 * n.z;
-    vec3 lit = base * tex * (0.78 * sun + 0.34 * sky + 0.06);
-    f_color = vec4(clamp(mix(lit, u_haze_color, 0.55 * v_haze), 0.0, 1.0), 1.0);
+    vec3 sun_rgb = u_sun_rgb * sun;
+    vec3 light = sun_rgb + u_sky_rgb * sky + u_ambient_rgb;
+    vec3 lit_rgb = base * tex * light;
+#ifdef SHADOWS
+    // the share of this pixel's colour that the sun gives (haze included): what a shadow takes away
+    const vec3 lum = vec3(0.299, 0.587, 0.114);
+    float sun_share = dot(sun_rgb, lum) / max(dot(light, lum), 1e-4) * (1.0 - v_haze);
+    f_color = vec4(clamp(mix(lit_rgb, u_haze_color, v_haze), 0.0, 1.0), sun_share);
+#else
+    f_color = vec4(clamp(mix(lit_rgb, u_haze_color, v_haze), 0.0, 1.0), 1.0);
+#endif
     f_depth = v_z;
     f_inst = v_inst;
 }
@@ -135,7 +157,10 @@ uniform mat3 u_r_map_optical;
 uniform vec4 u_k;       // fx fy cx cy
 uniform float u_height;
 uniform vec3 u_sun;
-uniform vec3 u_haze_color;
+uniform vec3 u_zenith;
+uniform vec3 u_horizon;
+uniform vec3 u_glow;
+uniform float u_sun_disc;
 layout(location = 0) out vec4 f_color;
 layout(location = 1) out float f_depth;
 layout(location = 2) out uint f_inst;
@@ -145,9 +170,10 @@ void main() {
     vec3 ray = vec3((px.x - u_k.z) / u_k.x, (px.y - u_k.w) / u_k.y, 1.0);
     vec3 d = normalize(u_r_map_optical * ray);
     float t = clamp(d.z, 0.0, 1.0);
-    vec3 zenith = vec3(0.30, 0.50, 0.82);
-    vec3 c = mix(u_haze_color, zenith, pow(t, 0.6));
-    c += vec3(1.0, 0.95, 0.8) * pow(max(dot(d, u_sun), 0.0), 200.0);
+    vec3 c = mix(u_horizon, u_zenith, pow(t, 0.6));
+    float toward = max(dot(d, u_sun), 0.0);
+    c += u_glow * pow(toward, 6.0) * (1.0 - 0.7 * t);
+    c += u_sun_disc * vec3(1.0, 0.95, 0.8) * pow(toward, 200.0);
     f_color = vec4(clamp(c, 0.0, 1.0), 1.0);
     f_depth = uintBitsToFloat(0x7FC00000u);  // quiet NaN: no return
     f_inst = 0u;
@@ -171,4 +197,48 @@ INSTANCE_FS = """
 flat in uint v_inst;
 layout(location = 0) out uint f_inst;
 void main() { f_inst = v_inst; }
+"""
+
+DEPTH_VS = """
+#version 330
+uniform mat4 u_light;
+in vec3 in_pos;
+void main() { gl_Position = u_light * vec4(in_pos, 1.0); }
+"""
+
+DEPTH_FS = """
+#version 330
+void main() {}
+"""
+
+
+SHADOW_VS = """
+#version 330
+in vec2 in_xy;
+void main() { gl_Position = vec4(in_xy, 0.0, 1.0); }
+"""
+
+# One pixel per block of the camera image: back into the world from its z-depth, into the shadow map.
+SHADOW_FS = """
+#version 330
+uniform sampler2D u_depth;          // the camera pass's z-depth (metres; 0 or NaN: nothing there)
+uniform sampler2DShadow u_shadow;   // the world seen from the sun
+uniform mat3 u_r_map_optical;
+uniform vec3 u_eye;
+uniform vec4 u_k;                   // fx fy cx cy of the full-resolution camera
+uniform float u_height;             // full-resolution image height
+uniform mat4 u_light;               // map -> shadow map [0, 1]^3
+uniform float u_bias;               // shadow-map depth bias
+uniform int u_step;                 // camera pixels per shadow pixel, along each axis
+layout(location = 0) out float f_lit;
+void main() {
+    // the block's centre pixel in the full-resolution target (bottom-up)
+    ivec2 px = ivec2(gl_FragCoord.xy) * u_step + ivec2(u_step / 2);
+    float z = texelFetch(u_depth, px, 0).r;
+    if (!(z > 0.0)) { f_lit = 1.0; return; }
+    vec2 cv = vec2(float(px.x), u_height - 1.0 - float(px.y));  // OpenCV pixel (row 0 at the top)
+    vec3 p = u_r_map_optical * vec3((cv.x - u_k.z) / u_k.x * z, (cv.y - u_k.w) / u_k.y * z, z) + u_eye;
+    vec3 ls = (u_light * vec4(p, 1.0)).xyz;
+    f_lit = texture(u_shadow, vec3(ls.xy, clamp(ls.z - u_bias, 0.0, 1.0)));
+}
 """

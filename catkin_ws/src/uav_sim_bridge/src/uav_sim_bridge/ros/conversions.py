@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import rospy
-from geometry_msgs.msg import Point, Quaternion, TransformStamped, Vector3
+from geometry_msgs.msg import Point, Pose, Quaternion, TransformStamped, Vector3
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo
@@ -12,9 +14,11 @@ from vision_msgs.msg import BoundingBox2D, Detection2D, Detection2DArray, Object
 
 from uav_common.detection_classes import DetectionClasses
 from uav_common.frames import wxyz_to_ros_xyzw
-from uav_msgs.msg import Collision, Detection, DetectionArray, SimState
+from uav_msgs.msg import Collision, Detection, DetectionArray, ObjectStateArray, SimState
+from uav_msgs.msg import ObjectState as ObjectStateMsg
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.detections import GroundTruthDetection
+from uav_sim_bridge.core.objects import ObjectState
 from uav_sim_bridge.core.transforms import RigidTransform
 from uav_sim_bridge.core.vehicle_state import VehicleState
 
@@ -25,6 +29,7 @@ __all__ = [
     "detection_array",
     "ground_truth_boxes",
     "header",
+    "object_states_msg",
     "odometry",
     "quaternion",
     "sim_state",
@@ -108,6 +113,32 @@ def detection_array(hdr: Header, camera: str, dets: list[GroundTruthDetection]) 
                 position=Point(x=x, y=y, z=z),
                 position_covariance=[0.0] * 9,
                 position_source="ground_truth",
+            )
+        )
+    return out
+
+
+def object_states_msg(t_s: float, frame_id: str, states: list[ObjectState]) -> ObjectStateArray:
+    """The moving people and vehicles of one instant."""
+    out = ObjectStateArray(header=header(t_s, frame_id))
+    for st in states:
+        o = st.obj
+        x, y, z = o.pose.position_m
+        half = 0.5 * o.pose.yaw_rad
+        pose = Pose(
+            position=Point(x=x, y=y, z=z), orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+        )
+        vx, vy, vz = st.velocity_mps
+        out.objects.append(
+            ObjectStateMsg(
+                instance_id=o.instance_id,
+                name=o.name,
+                class_name=o.object_class.label,
+                kind=o.kind,
+                pose=pose,
+                size=Vector3(x=o.size_m[0], y=o.size_m[1], z=o.size_m[2]),
+                velocity=Vector3(x=vx, y=vy, z=vz),
+                moving=st.moving,
             )
         )
     return out

@@ -44,6 +44,7 @@ from uav_scenarios.core.scoring.metrics import (
     view_angle_deg,
     voxel_accuracy,
 )
+from uav_scenarios.core.scoring.trails import ObjectStateRecord, TrailStats, TrailTracker
 from uav_scenarios.core.scoring.types import (
     BatterySample,
     CollisionEvent,
@@ -146,6 +147,8 @@ class RunScorer:
     camera_pitch_deg: dict[str, float] = field(default_factory=lambda: {"nadir": 90.0, "forward": 25.0})
     #: Along-track over across-track footprint of the map camera (image height / width for a nadir camera).
     footprint_aspect: float = 0.75
+    #: The map's voxel size (trail voxels use it until the truth's surface voxels are known).
+    spec_resolution_m: float = 0.5
     #: The detector's operating threshold: TP/FP/FN, tracking and the gallery use detections at or above it;
     #: AP and the precision-recall curves use every detection.
     score_threshold: float = 0.0
@@ -195,6 +198,8 @@ class RunScorer:
     _confirmed: tuple[float, tuple[float, float, float]] | None = None
     _candidates_rejected: int = 0
     _last_t_s: float = -math.inf
+    #: Voxels moving objects left behind and what the map did with them (None until object states arrive).
+    _trails: TrailTracker | None = None
 
     # ---- feeding -------------------------------------------------------------------------
 
@@ -248,6 +253,35 @@ class RunScorer:
             return None
         self.set_map_accuracy(t_s, voxel_accuracy(keys, self.truth.surface_keys, self.truth.surface_columns))
         return self._map_accuracy
+
+    def add_object_states(self, record: ObjectStateRecord) -> None:
+        """Ground truth of the moving people and vehicles at one instant (``/sim/object_states``)."""
+        self._advance(record.t_s)
+        if self._trails is None:
+            res = self.truth.surface_resolution_m or self.spec_resolution_m
+            self._trails = TrailTracker(res)
+        self._trails.add(record)
+
+    def evaluate_trails(self, t_s: float, map_keys: np.ndarray[Any, np.dtype[np.int64]]) -> TrailStats | None:
+        """The map's occupied voxels (packed keys, the truth's resolution) against the moving objects' trails."""
+        if self._trails is None:
+            return None
+        if self._trails.static_keys.size == 0 and self.truth.surface_keys.size:
+            self._trails.static_keys = self.truth.surface_keys
+        layers = self._layers
+        last_seen = None
+        if layers is not None and "last_seen_s" in layers.layers:
+            grid = np.asarray(layers.layers["last_seen_s"], dtype=np.float64)
+
+            def last_seen(x: np.ndarray[Any, Any], y: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+                col = np.floor((x - layers.origin_x_m) / layers.resolution_m).astype(np.int64)
+                row = np.floor((y - layers.origin_y_m) / layers.resolution_m).astype(np.int64)
+                ok = (row >= 0) & (row < grid.shape[0]) & (col >= 0) & (col < grid.shape[1])
+                out = np.full(len(x), np.nan)
+                out[ok] = grid[row[ok], col[ok]]
+                return out
+
+        return self._trails.evaluate(t_s, map_keys, last_seen)
 
     def set_map_accuracy(self, t_s: float, accuracy: VoxelAccuracy) -> None:
         """A map accuracy computed elsewhere (:func:`voxel_accuracy` is slow on big maps: off the lock)."""
@@ -548,6 +582,7 @@ class RunScorer:
         acc = self._map_accuracy
         goal = self._goals[-1] if self._goals else None
         ctrl = self._controller[-1] if self._controller else None
+        trail = self._trails.last if self._trails is not None else None
         nan = math.nan
         return {
             "t_s": now_s,
@@ -576,6 +611,8 @@ class RunScorer:
             "det_fp": float(self._det_total.fp),
             "det_fn": float(self._det_total.fn),
             "collisions": float(len(self._collisions)),
+            "trail_ghost_voxels": float(trail.ghosts) if trail else nan,
+            "trail_cleared_voxels": float(trail.cleared) if trail else nan,
             "pose_error_m": self._latest_pose_error_m(),
         }
 
@@ -673,10 +710,20 @@ class RunScorer:
             "search": self._search_summary(),
             "tracking": self._tracking_summary() if tracking or self._tracking_cache is None else self._tracking_cache,
             "depth": self._depth_summary(),
+            "moving_objects": self._trail_summary(),
             "pose_estimate": self._estimate_summary(now_s),
             "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
         }
         return out
+
+    def _trail_summary(self) -> dict[str, Any]:
+        trails = self._trails
+        if trails is None:
+            return {"movers": 0}
+        last = trails.last
+        if last is None:
+            return {"movers": len(trails.movers), "distance_m": trails.distance_m, "evaluated_t_s": math.nan}
+        return {"evaluated_t_s": last.t_s - self.start_t_s, **last.as_dict()}
 
     def _estimate_summary(self, now_s: float) -> dict[str, Any]:
         """The estimate the autonomy flew on against the truth (empty samples: ground-truth runs)."""
