@@ -188,3 +188,46 @@ def test_bad_flights_say_what_is_wrong(run: tuple[Path, Path, tuple[float, float
     truncated = load_dataset_config(small_dataset(tmp, source="flight", flight={"run": str(cut), "camera": "forward"}))
     with pytest.raises(FlightError, match="reindex"):
         generate(truncated, tmp / "x4", cache_dir=cache)
+
+
+def test_walkers_and_drivers_are_where_the_bridge_had_them_at_each_frame(tmp_path: Path) -> None:
+    """A world with movers: every frame places them at its own simulation time, as the bridge's engine does
+    (``MotionPlan.states_at``), so the labels follow the people and vehicles the run saw move."""
+    from uav_datasets.shell.flight import load_flight  # noqa: PLC0415
+    from uav_sim_bridge.core.motion import ActorsConfig, plan_motion  # noqa: PLC0415
+
+    world_yaml = tmp_path / "movers.yaml"
+    world_yaml.write_text(SMALL_WORLD.replace("people: {count: 16}", "people: {count: 16, moving: 4}")
+                          .replace("vehicles: {count: 8}", "vehicles: {count: 8, moving: 3}"))  # fmt: skip
+    cache = tmp_path / "cache"
+    world = load_world(load_world_config(world_yaml), cache)
+    scenario = {
+        "name": "movers",
+        "mission": "loiter",
+        "world": {"config": str(world_yaml)},
+        "node_params": {"sim_bridge": {"cameras": {"forward": FORWARD, "nadir": {**FORWARD, "rate_hz": 5.0}}}},
+    }
+    bag = tmp_path / "run" / "run.bag"
+    bag.parent.mkdir()
+    kit = BagKit(bag)
+    kit.write("/scenario/config", T0, kit.string("# Effective scenario\n" + yaml.safe_dump(scenario)))
+    for k in range(round(3.0 * RATE)):
+        t = T0 + k / RATE
+        kit.write("/uav/ground_truth/odom", t, kit.odom(t, 0.0, 0.0, float(world.height_at(0.0, 0.0)) + AGL))
+    kit.close()
+    cfg = load_dataset_config(
+        small_dataset(tmp_path, source="flight", flight={"run": str(bag.parent), "camera": "forward"})
+    )
+    flight, _ = load_flight(cfg, bag.parent, lambda wc: load_world(wc, cache))
+    motion = plan_motion(world.objects, world.roads, world.terrain.bounds_m, world.config, ActorsConfig())
+    assert len(motion.movers) == 7
+    assert len(flight.frames) == 24  # the config's frame limit: 2.3 s of a 10 Hz camera
+    for plan in (flight.frames[0], flight.frames[-1]):
+        poses = dict(plan.object_poses)
+        for st in motion.states_at(plan.timestamp_s, world.terrain):
+            assert poses[st.instance_id] == st.pose
+    first, last = dict(flight.frames[0].object_poses), dict(flight.frames[-1].object_poses)
+    moved_m = [
+        math.dist(first[m.obj.instance_id].position_m, last[m.obj.instance_id].position_m) for m in motion.movers
+    ]
+    assert min(moved_m) > 1.0, moved_m  # 2.3 s at walking (>= 1 m/s) and road speeds

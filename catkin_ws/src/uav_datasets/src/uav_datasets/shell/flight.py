@@ -9,8 +9,9 @@ search-and-rescue person's seeded placement). Frames fall where the bridge rende
 state at or after each instant of the camera's rate grid (``RateSchedule``), so the re-rendered frames
 are the run's frames (those of the camera at least ``min_altitude_agl_m`` above the terrain). Object
 identities are the world's instance ids, the same in every frame. People and vehicles that walk or drive
-(the scenario's or world's ``actors``) are not re-posed: they stay where the world generated them
-(docs/datasets.md).
+(the scenario's or world's ``actors``) are placed where the bridge had them at each frame's simulation time
+(``MotionPlan.states_at``, a pure function of it); walkers keep the body pose the world generated (the
+bridge animates their gait), so their masks and boxes differ from the run's by a limb (docs/datasets.md).
 
 ``flight.scenario`` instead flies the scenario first with ``uav-run`` (lockstep, ``replay``
 recording) into ``<dataset>/source_run`` and converts that run.
@@ -40,6 +41,7 @@ from uav_scenarios.errors import ScenarioError
 from uav_scenarios.ros.records import pose_from_odometry
 from uav_sim_bridge.config import SimBridgeConfig, bridge_config
 from uav_sim_bridge.core.camera import CameraModel
+from uav_sim_bridge.core.motion import plan_motion
 from uav_sim_bridge.core.objects import ObjectPose
 from uav_sim_bridge.core.schedule import RateSchedule
 from uav_sim_bridge.core.transforms import RigidTransform
@@ -192,6 +194,9 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
     camera = CameraModel.from_config(spec.camera, cam_cfg)
     rate = spec.rate_hz or cam_cfg.rate_hz
     moved = _moved_objects(bridge, world)
+    moved_ids = {iid for iid, _ in moved}
+    # people who walk and vehicles that drive: where the bridge had them at each frame's simulation time
+    motion = plan_motion(world.objects, world.roads, world.terrain.bounds_m, world.config, bridge.actors)
     schedule = RateSchedule(rate)
     t0 = states[0][0]
     sequence = _sequence_name(spec, bag, folder)
@@ -220,7 +225,14 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
                 timestamp_s=t,
                 sequence=sequence,
                 sequence_frame=k + 1,
-                object_poses=tuple(moved),
+                object_poses=(
+                    *moved,
+                    *(
+                        (st.instance_id, st.pose)
+                        for st in motion.states_at(t, world.terrain)
+                        if st.instance_id not in moved_ids
+                    ),
+                ),
             )
         )
     if not frames:
