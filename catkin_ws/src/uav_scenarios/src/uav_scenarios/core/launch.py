@@ -132,7 +132,7 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
             ("turbulence", w.turbulence),
             ("seed", w.seed),
         ):
-            argv += ["--set", f"wind.{key}={_yaml_scalar(value)}"]
+            argv += ["--set", f"wind.{key}={yaml_scalar(value)}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
         argv += ["--set", f"{key}={yaml_scalar(value)}"]
     return argv
