@@ -6,15 +6,21 @@ What a field test rig (QGroundControl, a MAVSDK script with the ``failure`` plug
 param1 FAILURE_UNIT, param2 FAILURE_TYPE, param3 instance) and wait for its COMMAND_ACK, re-sending up to
 :data:`SEND_ATTEMPTS` times (incrementing ``confirmation``), as MAVSDK does.
 
-One thread owns the connection. Time: the schedule is on the caller's clock (ROS time: simulated seconds),
-so in lockstep a fault is sent during the step in which it falls due (within one lockstep step, ``time.step_s``);
-the COMMAND_ACK's arrival is stamped on that clock too. Only the answer timeouts are wall-clock seconds.
+One thread owns the connection. Between commands it drops what the router sends it unparsed (the whole
+telemetry stream, thousands of messages a wall second in a fast lockstep run: parsing it in Python would take
+CPU from the run's nodes) and resets the parser before it listens for an answer.
+
+Time: the schedule is on the caller's clock (ROS time: simulated seconds), so in lockstep a fault is sent during
+the step in which it falls due (within one lockstep step, ``time.step_s``); the SITL applies it before the next
+grant it executes if the command got there first (it reads every pending message before a grant). The
+COMMAND_ACK's arrival is stamped on that clock too. Only the answer timeouts are wall-clock seconds.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import select
 import struct
 import threading
 import time
@@ -23,6 +29,7 @@ from dataclasses import dataclass
 
 from pymavlink import mavutil
 
+from uav_common.mavlink_parser import reset_parser
 from uav_scenarios.core.faults import FaultAction, FaultSchedule
 
 __all__ = ["FaultLink", "FaultResult"]
@@ -81,6 +88,7 @@ class FaultLink:
         self.problem = ""
         self._stop = threading.Event()
         self._conn: mavutil.mavfile | None = None
+        self._parser_dirty = False
         self._thread = threading.Thread(target=self._run, name="fault-link", daemon=True)
 
     def start(self) -> None:
@@ -157,14 +165,30 @@ class FaultLink:
         self.problem = "the autopilot did not confirm SYS_FAILURE_EN = 1"
 
     def _drain(self, wait_s: float) -> None:
-        """Read (and drop) what arrives, so the socket never backs up; wait up to ``wait_s`` for it."""
+        """Drop what arrives unparsed, so the socket never backs up; wait up to ``wait_s`` for it."""
         conn = self._conn
-        if conn is None:
+        if conn is None or self.problem:
             self._stop.wait(wait_s)
             return
-        if conn.recv_match(blocking=True, timeout=wait_s) is not None:
-            while conn.recv_match(blocking=False) is not None:
-                pass
+        sock = conn.port
+        if not select.select([sock], [], [], wait_s)[0]:
+            return
+        self._parser_dirty = True
+        while True:
+            try:
+                data = sock.recv(65536)
+            except BlockingIOError:
+                return
+            except OSError as err:
+                data = b""
+                log.warning("fault link: %s", err)
+            if not data:  # the router closed the connection: dial again
+                conn.close()
+                self._conn = None
+                self._connect()
+                return
+            if len(data) < 65536:
+                return
 
     def _send(self, action: FaultAction) -> None:
         conn = self._conn
@@ -172,6 +196,9 @@ class FaultLink:
         if conn is None or self.problem:
             self.on_result(FaultResult(action, sent_s, "NOT_SENT", self.problem or "no link to the autopilot"))
             return
+        if self._parser_dirty:  # the dropped bytes may have ended in the middle of a frame
+            reset_parser(conn.mav)
+            self._parser_dirty = False
         for attempt in range(SEND_ATTEMPTS):
             conn.mav.command_long_send(
                 *self.target, MAV_CMD_INJECT_FAILURE, attempt,
