@@ -525,6 +525,29 @@ def test_a_stale_or_nan_pose_stops_commanding_and_says_so(what: str, reason: str
     assert rig.ap.mode is FlightMode.OFFBOARD
 
 
+def test_a_pose_going_stale_after_a_failsafe_took_over_is_reported() -> None:
+    """GPS lost: the autopilot's failsafe lands first (the controller yields), then the estimate goes stale; the
+    controller was not commanding, and says why it will not."""
+    rig = Rig()
+    rig.pose = PoseCheck(True, source="pose estimate on /uav/autopilot/odom")
+    rig.flying_east()
+    rig.ap.mode = FlightMode.AUTO_LAND  # the position-estimate failsafe (PX4's Descend)
+    rig.run(0.3)
+    assert rig.ctl.state is ControllerState.LAND
+    n = len(rig.log)
+    rig.pose = PoseCheck(False, "no fresh estimate for 1.2 s (timeout 1 s)", "pose estimate on /uav/autopilot/odom")
+    rig.tick()
+    status = rig.ctl.status()
+    assert status.state is ControllerState.LAND  # still following the autopilot's landing
+    assert status.last_event == (
+        "pose estimate on /uav/autopilot/odom cannot be flown on (no fresh estimate for 1.2 s (timeout 1 s)): "
+        "not commanding on it"
+    )
+    rig.run(1.0)
+    assert not any(isinstance(a, SendSetpoint) for _, a in rig.log[n:])
+    assert rig.ctl.pop_events().count(status.last_event) == 1  # said once, not every step
+
+
 def test_a_nan_autopilot_position_stops_commanding_at_once() -> None:
     rig = Rig()
     rig.flying_east()

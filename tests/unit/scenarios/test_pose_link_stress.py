@@ -167,9 +167,11 @@ def test_a_calm_scenario_leaves_the_sitl_calm(tmp_path: Path) -> None:
     assert not load_from_args(build_parser().parse_args(argv[1:])).wind.enabled
 
 
-def test_scripted_faults_are_refused_until_the_mission_manager_sends_them() -> None:
-    with pytest.raises(ConfigError, match=r"with stress motor_degradation.*faults: scripted in-flight faults"):
-        load_scenario(LOITER, stress=("motor_degradation",), stress_dir=STRESS)
+def test_the_motor_degradation_preset_scripts_its_fault() -> None:
+    s = load_scenario(LOITER, stress=("motor_degradation",), stress_dir=STRESS)
+    (fault,) = s.faults
+    assert (fault.at_s, fault.unit, fault.type, fault.instance, fault.duration_s) == (60.0, "motor", "wrong", 1, None)
+    assert s.stress_applied == ("motor_degradation",)
 
 
 def test_stress_in_the_scenario_file_and_its_errors(tmp_path: Path) -> None:
@@ -199,8 +201,15 @@ def test_wind_and_fault_values_are_checked(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"faults.*type: unknown fault type 'melted'"):
         load_scenario(write(tmp_path, "faults: [{at_s: 10, unit: gps, type: melted}]\n"))
     # "at t = 120 s, GPS off": YAML reads a bare off as false, which means the same here
-    with pytest.raises(ConfigError, match="faults: scripted in-flight faults are not yet run"):
-        load_scenario(write(tmp_path, "faults: [{at_s: 120, unit: gps, type: off}]\n"))
+    (gps,) = load_scenario(write(tmp_path, "faults: [{at_s: 120, unit: gps, type: off, duration_s: 30}]\n")).faults
+    assert (gps.type, gps.duration_s) == ("off", 30.0)
+    # what the SITL does not simulate is refused at load, naming the key, not answered UNSUPPORTED mid-run
+    with pytest.raises(ConfigError, match=r"faults.*type: gyro off is not simulated by the SITL"):
+        load_scenario(write(tmp_path, "faults: [{at_s: 10, unit: gyro, type: off}]\n"))
+    with pytest.raises(ConfigError, match=r"faults.*camera_nadir is not a MAVLink FAILURE_UNIT"):
+        load_scenario(write(tmp_path, "faults: [{at_s: 10, unit: camera_nadir, type: stuck}]\n"))
+    with pytest.raises(ConfigError, match=r"faults: failure injection is PX4's.*ardupilot"):
+        load_scenario(write(tmp_path, "autopilot: ardupilot\nfaults: [{at_s: 10, unit: gps, type: off}]\n"))
 
 
 # ---- pose error -----------------------------------------------------------------------------------------------
@@ -291,6 +300,4 @@ def test_uav_run_lays_stress_presets_over_the_scenario_and_refuses_bad_ones(
     err = capsys.readouterr().err
     assert "stress: no preset 'no_such_preset'" in err
     assert "lossy_link" in err  # it lists what there is
-    assert main([str(LOITER), "--stress", "motor_degradation", "--runs-dir", str(tmp_path)]) == 2
-    assert "faults: scripted in-flight faults are not yet run" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())  # nothing was started, no run folder made

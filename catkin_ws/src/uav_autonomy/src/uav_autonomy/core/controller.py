@@ -36,7 +36,8 @@ States and transitions (see docs/autonomy.md for the full table):
   watches one): if it goes stale or turns NaN/inf, or the autopilot's own position
   does, the controller stops commanding at once: no more setpoints, the autopilot is
   asked to hold (its LOITER), the state is IDLE and ``last_event`` says why. It
-  refuses every offboard state until the pose is fit again.
+  refuses every offboard state until the pose is fit again. When it goes bad while the controller is not
+  commanding (IDLE, or following the autopilot's RTL/LAND after a failsafe), ``last_event`` says so too.
 
 Time: every timeout and retry interval is measured in the caller's (simulated)
 time. When the shell also passes a wall clock, a timeout (link, position) or a
@@ -341,6 +342,7 @@ class WaypointController:
         self._targets = _Targets()
         self._telemetry = Telemetry()
         self._pose: PoseCheck | None = None
+        self._pose_ok = False  # the watched pose was fit at the last step (for the "went bad" event)
         self._link_ok = False
         self._now_wall_s: float | None = None
         self._last_event = "started"
@@ -479,6 +481,11 @@ class WaypointController:
         self._telemetry = telemetry
         self._pose = pose
         self._now_wall_s = now_wall_s
+        pose_was_ok, self._pose_ok = self._pose_ok, pose is None or pose.ok
+        if pose is not None and pose_was_ok and not pose.ok and self._state not in OFFBOARD_STATES:
+            # Not commanding anyway (idle, or following the autopilot's RTL/LAND), but say so: a GPS failure
+            # seen from here is first the autopilot's failsafe, then the estimate going stale.
+            self._event(f"{pose.source} cannot be flown on ({pose.reason}): not commanding on it")
         cfg = self.config
         actions, self._queued = self._queued, []
         link_ok = telemetry.heartbeat_s is not None and not self._timed_out(

@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.validate import require_in_range
+from uav_scenarios.core.faults import not_simulated
 from uav_scenarios.errors import ScenarioConfigError
 from uav_sim_bridge.core.motion import ActorsConfig
 
@@ -461,8 +462,9 @@ FAULT_TYPES = ("ok", "off", "stuck", "garbage", "wrong", "slow", "delayed", "int
 
 @dataclass(frozen=True)
 class FaultSpec:
-    """A fault injected in flight, as PX4's ``MAV_CMD_INJECT_FAILURE`` does (issue 23 part B: the SITL does not
-    inject faults yet; a scenario with ``faults`` is refused with that reason)."""
+    """A fault injected in flight, as PX4's ``MAV_CMD_INJECT_FAILURE`` does: the mission manager sends the command
+    to the autopilot at ``at_s`` (simulated seconds since the mission started) and, with ``duration_s``, a
+    ``FAILURE_TYPE_OK`` that long after (``uav_scenarios.core.faults``)."""
 
     at_s: float
     unit: str
@@ -488,6 +490,10 @@ class FaultSpec:
             raise ValueError(msg)
         if self.duration_s is not None:
             require_in_range("duration_s", self.duration_s, 0.0, 1e6)
+        why = not_simulated(self.unit, str(self.type))
+        if why:
+            msg = f"type: {why}"
+            raise ValueError(msg)
 
 
 @dataclass(frozen=True)
@@ -563,6 +569,7 @@ RECORDING_PRESETS: dict[str, tuple[str, ...]] = {
         "/scenario/status",
         "/scenario/metrics",
         "/scenario/tracks",
+        "/scenario/faults",
         "/scenario/snapshot/layers",
         "/scenario/snapshot/features",
         "/scenario/snapshot/nadir/color",
@@ -662,8 +669,7 @@ class Scenario:
     link: LinkSpec = field(default_factory=LinkSpec)
     #: Mean wind and turbulence (passed to the SITL as its ``wind.*`` settings).
     wind: WindSpec | None = None
-    #: Faults injected in flight (the SITL injects them; scripting them in a scenario is refused until the
-    #: mission manager sends them).
+    #: Faults injected in flight: the mission manager sends each as MAV_CMD_INJECT_FAILURE at its time.
     faults: tuple[FaultSpec, ...] = ()
     #: Stress presets to lay over this scenario when it is loaded (names of config/stress/*.yaml or paths).
     stress: tuple[str, ...] = ()
@@ -708,11 +714,10 @@ class Scenario:
                     f"there; it cannot have motion {motion}"
                 )
                 raise ValueError(msg)
-        if self.faults:
+        if self.faults and self.autopilot is not AutopilotKind.PX4:
             msg = (
-                "faults: scripted in-flight faults are not yet run by the mission manager (issue 23, part B: the"
-                " SITL takes MAV_CMD_INJECT_FAILURE, docs/sitl.md 'Failure injection'); remove the key (or the"
-                " stress preset that sets it), or inject them with MAVSDK's failure plugin"
+                f"faults: failure injection is PX4's (MAV_CMD_INJECT_FAILURE); the {self.autopilot.value} "
+                "personality answers it UNSUPPORTED, as ArduCopter does: use autopilot: px4 or remove the faults"
             )
             raise ValueError(msg)
 

@@ -13,6 +13,10 @@ Publishes:
     ``/scenario/config`` (std_msgs/String, latched): the scenario file's text, for the bag and the report.
     ``/scenario/status`` (uav_msgs/ScenarioStatus) at 2 Hz and on every change.
     ``/autonomy/target_point`` (geometry_msgs/PointStamped): the confirmed person (goal selector's target).
+    ``/scenario/faults`` (uav_msgs/FaultEvent, latched queue): each scripted fault sent and the autopilot's answer.
+MAVLink (only when the scenario has ``faults``): over ``~autopilot_url`` (the router's TCP server) it sets
+    ``SYS_FAILURE_EN`` to 1 at start and sends each fault as ``MAV_CMD_INJECT_FAILURE`` at its run time (and
+    ``FAILURE_TYPE_OK`` ``duration_s`` later), as a test rig would (:mod:`uav_scenarios.shell.fault_link`).
 Calls:
     ``<~controller>/set_state`` (uav_msgs/SetControllerState): AUTONOMOUS or SCRIPTED (pattern from the
     scenario) once the controller's link is up, HOLD staring at the person once confirmed.
@@ -22,6 +26,8 @@ Parameters:
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
     ``~detector`` (str, ""): the detector the launch file started; must match ``perception.detector``;
     ``~pose_source`` (str, ""): likewise for ``pose_source``;
+    ``~autopilot_url`` (str, ""): pymavlink URL of the autopilot for scripted faults (a scenario with ``faults``
+    and no URL is refused);
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
     recorded topic that has a publisher and is connected to each of them (both ends' ``getBusInfo`` list the
     link; in deterministic runs the bridge holds simulation time instead), so the bag holds the
@@ -51,7 +57,7 @@ from std_msgs.msg import Header, String
 from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
-from uav_msgs.msg import ControllerState, DetectionArray, RunMetrics, ScenarioStatus, SimState
+from uav_msgs.msg import ControllerState, DetectionArray, FaultEvent, RunMetrics, ScenarioStatus, SimState
 from uav_msgs.srv import SetControllerState, SetControllerStateRequest
 from uav_scenarios.core.config import (
     GEOLOCATED_TOPIC,
@@ -61,6 +67,7 @@ from uav_scenarios.core.config import (
     load_scenario,
     recorded_topics,
 )
+from uav_scenarios.core.faults import FaultSchedule, fault_actions
 from uav_scenarios.core.mission import (
     ConfirmationGate,
     Phase,
@@ -75,6 +82,7 @@ from uav_scenarios.errors import ScenarioConfigError, ScenarioError
 from uav_scenarios.ros.messages import status_msg
 from uav_scenarios.ros.params import MissionManagerParams
 from uav_scenarios.ros.records import detections_from_msg
+from uav_scenarios.shell.fault_link import FaultLink, FaultResult
 from uav_scenarios.shell.world_store import load_world
 
 FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
@@ -137,6 +145,8 @@ class MissionManager:
         self.rtf_window: deque[tuple[float, float]] = deque(maxlen=20)
         self.status_pub: rospy.Publisher | None = None
         self.target_pub: rospy.Publisher | None = None
+        self.fault_pub: rospy.Publisher | None = None
+        self.fault_link: FaultLink | None = None
 
     def start(self) -> None:
         config_pub = rospy.Publisher("/scenario/config", String, queue_size=1, latch=True)
@@ -152,6 +162,46 @@ class MissionManager:
         if self.gate is not None and self.scenario.search is not None:
             rospy.Subscriber(GEOLOCATED_TOPIC, DetectionArray, self.on_detections, queue_size=20)
         rospy.Timer(rospy.Duration(0.5), self.on_tick)
+
+    def start_faults(self, autopilot_url: str) -> None:
+        """Send the scenario's faults over MAVLink at their run times (from a thread of the fault link's)."""
+        if not self.scenario.faults:
+            return
+        self.fault_pub = rospy.Publisher("/scenario/faults", FaultEvent, queue_size=20, latch=True)
+        self.fault_link = FaultLink(
+            autopilot_url,
+            FaultSchedule(fault_actions(self.scenario.faults)),
+            elapsed_s=lambda: None if self.start_sim_s is None else rospy.get_time() - self.start_sim_s,
+            now_s=rospy.get_time,
+            on_result=self.on_fault_result,
+        )
+        self.fault_link.start()
+        rospy.on_shutdown(self.fault_link.stop)
+        rospy.loginfo(f"mission_manager: {len(self.scenario.faults)} scripted fault(s), sent over {autopilot_url}")
+
+    def on_fault_result(self, r: FaultResult) -> None:
+        a = r.action
+        log = rospy.loginfo if r.result == "ACCEPTED" else rospy.logerr
+        run_s = r.sent_s - self.start_sim_s if self.start_sim_s is not None else math.nan
+        log(
+            f"mission_manager: fault {a.label} (due at {a.at_s:g} s) sent at {run_s:.2f} s: {r.result}"
+            + (f" ({r.detail})" if r.detail else "")
+        )
+        if self.fault_pub is None:
+            return
+        msg = FaultEvent(
+            header=Header(stamp=rospy.Time.from_sec(r.sent_s), frame_id=""),
+            index=a.index,
+            at_s=a.at_s,
+            unit=a.unit,
+            type=a.failure_type,
+            instance=a.instance,
+            clear=a.clear,
+            result=r.result,
+            detail=r.detail,
+            answered_s=r.answered_s,
+        )
+        self.fault_pub.publish(msg)
 
     # ---- inputs ----------------------------------------------------------------------------
 
@@ -429,5 +479,12 @@ def _run() -> None:
         scripted=scripted,
     )
     node.wait_for_recorder = params.wait_for_recorder
+    if scenario.faults and not params.autopilot_url:
+        msg = (
+            f"{scenario.source} scripts faults but ~autopilot_url is empty: the mission manager sends them over "
+            "MAVLink (scenario_common.launch sets it to the router's TCP server)"
+        )
+        raise ScenarioConfigError(msg)
     node.start()
+    node.start_faults(params.autopilot_url)
     rospy.spin()

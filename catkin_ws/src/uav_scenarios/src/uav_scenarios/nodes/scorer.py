@@ -9,6 +9,8 @@ Subscribes:
     placed in map) (uav_msgs/DetectionArray),
     ``/scenario/tracks`` (uav_msgs/TrackArray), ``/sim/collision`` (uav_msgs/Collision),
     ``/autonomy/goal_reason`` (uav_msgs/GoalReason), ``/uav/controller/state`` (uav_msgs/ControllerState),
+    ``/scenario/faults`` (uav_msgs/FaultEvent: scripted faults), ``/autonomy/path`` (nav_msgs/Path: the
+    commanded path, for the setpoint tracking error),
     ``/depth_evaluator/metrics`` (uav_msgs/DepthMetrics, when depth is estimated),
     ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
     with ``pose_source: autopilot``: ``/uav/autopilot/odom`` (nav_msgs/Odometry, the estimate the autonomy flew
@@ -61,6 +63,7 @@ from typing import Any
 import numpy as np
 import rospy
 from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMsg
 from rosgraph_msgs.msg import Clock
 from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import BatteryState, Image
@@ -78,6 +81,7 @@ from uav_msgs.msg import (
     DepthMetrics,
     DetectionArray,
     EstimateStatus,
+    FaultEvent,
     GoalReason,
     GridLayers,
     MapInsertStats,
@@ -111,10 +115,12 @@ from uav_scenarios.ros.records import (
     depth_metrics_from_msg,
     detections_from_msg,
     estimate_status_from_msg,
+    fault_from_msg,
     goal_from_msg,
     grid_from_msg,
     image_from_msg,
     object_states_from_msg,
+    path_from_msg,
     pose_from_odometry,
     stamp_s,
     tracks_from_msg,
@@ -266,6 +272,8 @@ class ScorerNode:
         )
         sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=QUEUE)
         sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=QUEUE)
+        sub("/scenario/faults", FaultEvent, self._feed(fault_from_msg, "add_fault"), queue_size=QUEUE)
+        sub("/autonomy/path", PathMsg, self._feed(path_from_msg, "add_path"), queue_size=QUEUE)
         sub(
             "/depth_evaluator/metrics",
             DepthMetrics,

@@ -31,6 +31,8 @@ class MissionManagerParams:
     depth_source: str = ""
     detector: str = ""
     pose_source: str = ""
+    #: The test rig's MAVLink link for scripted faults (pymavlink URL: the router's TCP server); "" = none.
+    autopilot_url: str = ""
     wait_for_recorder: bool = False
     shutdown_on_stop: bool = True
     linger_s: float = 1.0

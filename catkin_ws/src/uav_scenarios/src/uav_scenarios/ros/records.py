@@ -24,8 +24,10 @@ from uav_scenarios.core.scoring.types import (
     Detection,
     DetectionFrame,
     EstimateStatusSample,
+    FaultSample,
     GoalSample,
     GridSnapshot,
+    PathSample,
     PoseSample,
     Track,
     TrackFrame,
@@ -169,6 +171,30 @@ def goal_from_msg(msg: Any) -> GoalSample:
     if hasattr(msg, "goal"):
         return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.goal), str(msg.reason))
     return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.point), "")
+
+
+def fault_from_msg(msg: Any) -> FaultSample:
+    """``uav_msgs/FaultEvent`` -> fault sample."""
+    return FaultSample(
+        t_s=stamp_s(msg.header.stamp),
+        index=int(msg.index),
+        at_s=float(msg.at_s),
+        unit=str(msg.unit),
+        failure_type=str(msg.type),
+        instance=int(msg.instance),
+        clear=bool(msg.clear),
+        result=str(msg.result),
+        detail=str(msg.detail),
+        answered_s=float(msg.answered_s),
+    )
+
+
+def path_from_msg(msg: Any) -> PathSample:
+    """``nav_msgs/Path`` -> path sample (map ENU points)."""
+    return PathSample(
+        t_s=stamp_s(msg.header.stamp),
+        points_m=tuple((p.pose.position.x, p.pose.position.y, p.pose.position.z) for p in msg.poses),
+    )
 
 
 def controller_from_msg(msg: Any, t_s: float | None = None) -> ControllerSample:

@@ -23,10 +23,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from uav_scenarios.core.config import ScoringSpec
 from uav_scenarios.core.mission import CONFIRM_RADIUS_M
 from uav_scenarios.core.scoring.coco import CocoScores, ContextBands
+from uav_scenarios.core.scoring.faults import distance_to_polyline_m, fault_summary, tracking_stats
 from uav_scenarios.core.scoring.gallery import Gallery, GalleryItem
 from uav_scenarios.core.scoring.geolocation import GeolocationScores
 from uav_scenarios.core.scoring.hota import HotaAccumulator, ground_similarity
@@ -53,8 +55,10 @@ from uav_scenarios.core.scoring.types import (
     Detection,
     DetectionFrame,
     EstimateStatusSample,
+    FaultSample,
     GoalSample,
     GridSnapshot,
+    PathSample,
     PoseSample,
     SceneTruth,
     TrackFrame,
@@ -190,6 +194,13 @@ class RunScorer:
     _geo: GeolocationScores = field(default_factory=GeolocationScores)
     _gallery: Gallery | None = None
     _events: list[tuple[float, str]] = field(default_factory=list)
+    #: Scripted faults sent, and every autopilot mode / controller / estimate change (what followed them).
+    _faults: list[FaultSample] = field(default_factory=list)
+    _changes: list[tuple[float, str]] = field(default_factory=list)
+    #: The path the autonomy commands (map ENU) and the vehicle's distance from it while AUTONOMOUS.
+    _path_m: npt.NDArray[np.float64] | None = None
+    _tracking_errors_m: list[float] = field(default_factory=list)
+    _tracking_last_t_s: float = -math.inf
     _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
     _tracking_cache: dict[str, Any] | None = None
     _takeoff_t_s: float | None = None
@@ -220,6 +231,32 @@ class RunScorer:
             self._distance_m += math.dist(prev.position_m, pose.position_m)
         self._poses.append(pose)
         self._agl.append(self._ground_clearance(pose))
+        self._track_setpoint(pose)
+
+    def add_path(self, sample: PathSample) -> None:
+        """The path the autonomy commands (``/autonomy/path``, map ENU); an empty or non-finite one is ignored."""
+        self._advance(sample.t_s)
+        path = np.asarray(sample.points_m, dtype=np.float64).reshape(-1, 3)
+        if path.shape[0] and np.isfinite(path).all():
+            self._path_m = path
+
+    def _track_setpoint(self, pose: PoseSample) -> None:
+        """Setpoint tracking error: the vehicle's distance from the commanded path, at most 10 times a second,
+        while the controller flies it (AUTONOMOUS)."""
+        ctrl = self._controller[-1] if self._controller else None
+        if ctrl is None or ctrl.state != "AUTONOMOUS" or self._path_m is None:
+            return
+        if pose.t_s - self._tracking_last_t_s < ESTIMATE_PERIOD_S - 1e-6:
+            return
+        self._tracking_last_t_s = pose.t_s
+        self._tracking_errors_m.append(distance_to_polyline_m(pose.position_m, self._path_m))
+
+    def add_fault(self, fault: FaultSample) -> None:
+        """A scripted fault the mission manager sent and the autopilot's answer (an event; ``faults`` section)."""
+        self._advance(fault.t_s)
+        self._faults.append(fault)
+        detail = f" ({fault.detail})" if fault.detail else ""
+        self._events.append((fault.t_s, f"fault {fault.label}: {fault.result}{detail}"))
 
     def add_estimate(self, pose: PoseSample) -> None:
         """A pose estimate (the autopilot's, as the autonomy used it), scored against the true trajectory."""
@@ -235,6 +272,7 @@ class RunScorer:
         if previous is None or previous.state != status.state:
             why = f": {status.reason}" if status.reason else ""
             self._events.append((status.t_s, f"pose estimate {status.state}{why}"))
+            self._changes.append((status.t_s, f"pose estimate {status.state}{why}"))
         self._estimate_status = status
 
     def add_battery(self, sample: BatterySample) -> None:
@@ -300,6 +338,12 @@ class RunScorer:
 
     def add_controller(self, sample: ControllerSample) -> None:
         self._advance(sample.t_s)
+        prev = self._controller[-1] if self._controller else None
+        if prev is None or prev.autopilot_mode != sample.autopilot_mode:
+            self._changes.append((sample.t_s, f"autopilot {sample.autopilot_mode or '(no mode)'}"))
+        if prev is None or prev.state != sample.state or prev.last_event != sample.last_event:
+            why = f": {sample.last_event}" if sample.last_event else ""
+            self._changes.append((sample.t_s, f"controller {sample.state}{why}"))
         if not self._controller or self._controller[-1].state != sample.state:
             self._events.append((sample.t_s, f"controller {sample.state}"))
             if sample.state in ("IDLE", "RTL", "LAND") and sample.last_event and self._controller:
@@ -712,6 +756,11 @@ class RunScorer:
             "depth": self._depth_summary(),
             "moving_objects": self._trail_summary(),
             "pose_estimate": self._estimate_summary(now_s),
+            "faults": fault_summary(self._faults, self._changes, start_s=self.start_t_s, end_s=now_s),
+            "setpoint_tracking": {
+                "reference": "distance from the commanded path (/autonomy/path) while AUTONOMOUS, ground truth",
+                **tracking_stats(self._tracking_errors_m),
+            },
             "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
         }
         return out

@@ -25,8 +25,10 @@ __all__ = [
     "Detection",
     "DetectionFrame",
     "EstimateStatusSample",
+    "FaultSample",
     "GoalSample",
     "GridSnapshot",
+    "PathSample",
     "PoseSample",
     "SceneTruth",
     "Track",
@@ -181,6 +183,36 @@ class ControllerSample:
     in_air: bool = False
     #: What last happened (e.g. why it stopped commanding).
     last_event: str = ""
+
+
+@dataclass(frozen=True)
+class PathSample:
+    """The path the autonomy commands (``/autonomy/path``): ``(N, 3)`` map ENU points."""
+
+    t_s: float
+    points_m: tuple[Vec3, ...]
+
+
+@dataclass(frozen=True)
+class FaultSample:
+    """A scripted fault the mission manager sent (uav_msgs/FaultEvent) and the autopilot's answer."""
+
+    t_s: float
+    index: int
+    at_s: float
+    unit: str
+    failure_type: str
+    instance: int = 0
+    clear: bool = False
+    result: str = ""
+    detail: str = ""
+    answered_s: float = math.nan
+
+    @property
+    def label(self) -> str:
+        inst = f" {self.instance}" if self.instance else ""
+        end = f" (end of fault {self.index})" if self.clear else ""
+        return f"{self.unit}{inst} {self.failure_type}{end}"
 
 
 @dataclass(frozen=True)
