@@ -23,11 +23,11 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parents[1]), str(HERE.parents[1] / "unit" / "perception")]
-
 import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
 from geometry_msgs.msg import TransformStamped  # noqa: E402
+from helpers.ros_collect import Collector  # noqa: E402 - after the path set-up
 from nav_msgs.msg import Odometry  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField  # noqa: E402
@@ -79,21 +79,6 @@ def transform(parent: str, child: str, pose: CameraPose, t: rospy.Time) -> Trans
     return tf
 
 
-class Collector:
-    def __init__(self, topic: str, cls: type) -> None:
-        self.msgs: list = []
-        self._lock = threading.Lock()
-        rospy.Subscriber(topic, cls, self._cb, queue_size=50, buff_size=2**25)
-
-    def _cb(self, msg: object) -> None:
-        with self._lock:
-            self.msgs.append(msg)
-
-    def snapshot(self) -> list:
-        with self._lock:
-            return list(self.msgs)
-
-
 class TestDepthNodes(unittest.TestCase):
     @classmethod
     def setUpClass(cls) -> None:
@@ -107,12 +92,12 @@ class TestDepthNodes(unittest.TestCase):
         cls.late_frame = cls.frames.pop()
         RUN_DIR.mkdir(parents=True, exist_ok=True)
         cls.collect = {
-            "depth": Collector("/depth_estimator/depth/image_raw", Image),
-            "info": Collector("/depth_estimator/depth/camera_info", CameraInfo),
-            "points": Collector("/depth_estimator/points", PointCloud2),
-            "status": Collector("/depth_estimator/status", DepthEstimatorStatus),
-            "odom_depth": Collector("/depth_estimator_odom/depth/image_raw", Image),
-            "metrics": Collector("/depth_evaluator/metrics", DepthMetrics),
+            "depth": Collector("/depth_estimator/depth/image_raw", Image, queue_size=50),
+            "info": Collector("/depth_estimator/depth/camera_info", CameraInfo, queue_size=50),
+            "points": Collector("/depth_estimator/points", PointCloud2, queue_size=50),
+            "status": Collector("/depth_estimator/status", DepthEstimatorStatus, queue_size=50),
+            "odom_depth": Collector("/depth_estimator_odom/depth/image_raw", Image, queue_size=50),
+            "metrics": Collector("/depth_evaluator/metrics", DepthMetrics, queue_size=50),
         }
         cls.pub_clock = rospy.Publisher("/clock", Clock, queue_size=10)
         cls.pub_tf = rospy.Publisher("/tf", TFMessage, queue_size=100)

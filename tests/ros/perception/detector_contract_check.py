@@ -24,11 +24,11 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parents[1])]
-
 import numpy as np  # noqa: E402
 import rospy  # noqa: E402
 import rostest  # noqa: E402
 from geometry_msgs.msg import Point, TransformStamped  # noqa: E402
+from helpers.ros_collect import Collector  # noqa: E402 - after the path set-up
 from nav_msgs.msg import Odometry  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
@@ -85,21 +85,6 @@ def d2d(box: tuple[float, float, float, float], class_id: int, score: float, hdr
     det.bbox.center.x, det.bbox.center.y = cu, cv
     det.results = [ObjectHypothesisWithPose(id=class_id, score=score)]
     return det
-
-
-class Collector:
-    def __init__(self, topic: str, cls: type) -> None:
-        self.lock = threading.Lock()
-        self.msgs: list = []
-        rospy.Subscriber(topic, cls, self._cb, queue_size=500)
-
-    def _cb(self, msg: object) -> None:
-        with self.lock:
-            self.msgs.append(msg)
-
-    def snapshot(self) -> list:
-        with self.lock:
-            return list(self.msgs)
 
 
 class TestDetectorContract(unittest.TestCase):

@@ -14,9 +14,8 @@ import pytest
 import yaml
 from helpers.paths import REPO
 
-from uav_common.config import deep_merge, load_yaml_mapping
 from uav_common.robot import load_robot_description
-from uav_sim_bridge.config import bridge_config, mounted_cameras
+from uav_sim_bridge.config import mounted_cameras, shipped_bridge_config
 
 
 def _sim_bridge_overrides(node: Any, where: str) -> list[tuple[str, dict[str, Any]]]:
@@ -57,10 +56,8 @@ def test_the_search_finds_the_shipped_overrides() -> None:
 
 @pytest.mark.parametrize(("where", "overrides"), CASES, ids=[c[0] for c in CASES])
 def test_the_bridge_accepts_the_overrides(where: str, overrides: dict[str, Any]) -> None:
-    base = REPO / "config" / "sim_bridge.yaml"
-    data = deep_merge(load_yaml_mapping(base), overrides)
+    cfg = shipped_bridge_config(overrides, source=where)
     robot = load_robot_description(REPO / "config" / "robot.yaml")
-    cfg = bridge_config(data, robot, source=where)
     assert set(cfg.cameras) <= set(robot.cameras), where
 
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import ConfigError, from_mapping, load_yaml_mapping, to_mapping
-from uav_common.paths import config_dir
-from uav_common.robot import RobotDescription
+from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_mapping, to_mapping
+from uav_common.paths import config_dir, config_file
+from uav_common.robot import RobotDescription, load_robot_description
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
 from uav_sim_bridge.core.collision import CollisionConfig
 from uav_sim_bridge.core.detections import DetectionConfig
@@ -40,6 +40,7 @@ __all__ = [
     "mounted_cameras",
     "resolve_environment",
     "resolve_world_path",
+    "shipped_bridge_config",
 ]
 
 
@@ -299,3 +300,14 @@ def bridge_config(data: dict[str, Any], robot: RobotDescription, *, source: str)
     merged["cameras"] = mounted_cameras(merged.get("cameras"), robot, source=source)
     merged["environment"] = resolve_environment(merged.get("environment"))  # its preset loaded, free values over it
     return from_mapping(SimBridgeConfig, merged, source=source)
+
+
+def shipped_bridge_config(overrides: Mapping[str, Any], *, source: str) -> SimBridgeConfig:
+    """:func:`bridge_config` of ``config/sim_bridge.yaml`` with ``overrides`` merged over it (a scenario's
+    ``node_params.sim_bridge``) and the cameras placed by ``config/robot.yaml``: the bridge a run starts.
+
+    Raises:
+        SimBridgeConfigError, ConfigError: as :func:`bridge_config`; a missing or broken file, named.
+    """
+    data = deep_merge(load_yaml_mapping(config_file("sim_bridge.yaml")), dict(overrides))
+    return bridge_config(data, load_robot_description(config_file("robot.yaml")), source=source)

@@ -28,9 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from uav_common.config import ConfigError, deep_merge, load_yaml_mapping
-from uav_common.paths import config_file
-from uav_common.robot import load_robot_description
+from uav_common.config import ConfigError
 from uav_datasets.core.config import DatasetConfig, FlightSpec
 from uav_datasets.core.plan import FramePlan
 from uav_datasets.errors import DatasetConfigError, FlightError
@@ -39,7 +37,7 @@ from uav_scenarios.core.params import RunContext, needs_person, node_params
 from uav_scenarios.core.world import place_person, world_config_for
 from uav_scenarios.errors import ScenarioError
 from uav_scenarios.ros.records import pose_from_odometry
-from uav_sim_bridge.config import SimBridgeConfig, bridge_config
+from uav_sim_bridge.config import SimBridgeConfig, shipped_bridge_config
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.motion import plan_motion
 from uav_sim_bridge.core.objects import ObjectPose
@@ -180,9 +178,7 @@ def load_flight(cfg: DatasetConfig, run: Path, world_loader: Any) -> tuple[Fligh
             else None
         )
         overrides = node_params(scenario, "sim_bridge", RunContext(person=person))
-        base = load_yaml_mapping(config_file("sim_bridge.yaml"))
-        robot = load_robot_description(config_file("robot.yaml"))
-        bridge = bridge_config(deep_merge(base, overrides), robot, source=f"{bag} (scenario {scenario.name})")
+        bridge = shipped_bridge_config(overrides, source=f"{bag} (scenario {scenario.name})")
     except (ConfigError, ScenarioError, SimBridgeError) as err:
         msg = f"flight {bag}: {err}"
         raise DatasetConfigError(msg) from err

@@ -5,7 +5,7 @@ them; a key they refuse used to show as the run (or every run of a campaign) dyi
 ``uav-run`` and ``uav-campaign`` call :func:`check_node_settings` first, so the same mistake is a configuration
 error (exit 2) naming the scenario file, the node and the key, and nothing is started or written.
 
-The bridge's settings are assembled exactly as the node assembles them (``uav_sim_bridge.config.bridge_config``
+The bridge's settings are assembled exactly as the node assembles them (``uav_sim_bridge.config.shipped_bridge_config``
 with ``config/robot.yaml``); the SITL's by ``uav-sitl --print-config`` with the run's ``--set`` overrides (the
 SITL is a program of its own, not a library of this package).
 """
@@ -15,14 +15,12 @@ from __future__ import annotations
 import subprocess
 from collections.abc import Iterable
 
-from uav_common.config import ConfigError, deep_merge, load_yaml_mapping
-from uav_common.paths import config_file
-from uav_common.robot import load_robot_description
+from uav_common.config import ConfigError
 from uav_scenarios.core.config import Scenario
 from uav_scenarios.core.launch import flatten_settings, yaml_scalar
 from uav_scenarios.core.params import node_params
 from uav_scenarios.errors import ScenarioConfigError, ScenarioError
-from uav_sim_bridge.config import bridge_config
+from uav_sim_bridge.config import shipped_bridge_config
 from uav_sim_bridge.errors import SimBridgeError
 
 __all__ = ["check_node_settings", "check_runs"]
@@ -65,8 +63,7 @@ def check_runs(scenarios: Iterable[tuple[str, Scenario]]) -> int:
 def _check_bridge(scenario: Scenario, label: str) -> None:
     source = f"{label}: node_params.sim_bridge over config/sim_bridge.yaml"
     try:
-        data = deep_merge(load_yaml_mapping(config_file("sim_bridge.yaml")), node_params(scenario, "sim_bridge"))
-        bridge_config(data, load_robot_description(config_file("robot.yaml")), source=source)
+        shipped_bridge_config(node_params(scenario, "sim_bridge"), source=source)
     except (ConfigError, SimBridgeError, ScenarioError, ValueError) as err:
         msg = f"the sim bridge would refuse this run's settings: {err}"
         raise ScenarioConfigError(msg) from err

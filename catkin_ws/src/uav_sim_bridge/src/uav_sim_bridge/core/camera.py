@@ -21,6 +21,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from uav_common.robot import CameraMount
 from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, FloatArray, RigidTransform, rotation_from_rpy
 from uav_sim_bridge.errors import CameraError
 
@@ -33,12 +34,9 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class MountConfig:
-    """Pose of the FLU camera frame ``camera_<name>`` on ``base_link``."""
-
-    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+#: Pose of the FLU camera frame ``camera_<name>`` on ``base_link``: the robot description's camera mount (the
+#: bridge takes every mount from ``config/robot.yaml``).
+MountConfig = CameraMount
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,8 @@ from functools import cache
 import numpy as np
 import numpy.typing as npt
 
+from uav_sim_bridge.core.mesh import icosahedron
+
 __all__ = [
     "PERSON_ROLES",
     "VEHICLE_ROLES",
@@ -180,19 +182,8 @@ def _segment(  # noqa: PLR0917 - a segment is its two ends, its side axis and it
 
 
 def _icosahedron() -> tuple[FloatArray, IntArray]:
-    g = (1.0 + math.sqrt(5.0)) / 2.0
-    v = np.array(
-        [[-1, g, 0], [1, g, 0], [-1, -g, 0], [1, -g, 0], [0, -1, g], [0, 1, g], [0, -1, -g], [0, 1, -g],
-         [g, 0, -1], [g, 0, 1], [-g, 0, -1], [-g, 0, 1]],
-        dtype=np.float64,
-    )  # fmt: skip
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    f = np.array(
-        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6],
-         [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
-         [8, 6, 7], [9, 8, 1]],
-        dtype=np.int64,
-    )  # fmt: skip
+    """:func:`mesh.icosahedron` turned so that two vertices lie on the z axis."""
+    v, f = icosahedron()
     # rotate so that two vertices lie on the z axis (a crown and a chin), the rest in two rings
     axis = v[5] / np.linalg.norm(v[5])
     z = np.array([0.0, 0.0, 1.0])

@@ -138,7 +138,8 @@ def cylinders(
     return local + c[:, None, :], faces.astype(np.int64)
 
 
-def _icosahedron() -> tuple[FloatArray, IntArray]:
+def icosahedron() -> tuple[FloatArray, IntArray]:
+    """The unit icosahedron: 12 vertices and 20 outward faces."""
     t = (1.0 + math.sqrt(5.0)) / 2.0
     v = np.array(
         [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
@@ -155,7 +156,7 @@ def _icosahedron() -> tuple[FloatArray, IntArray]:
     return v, f
 
 
-_ICO_V, _ICO_F = _icosahedron()
+_ICO_V, _ICO_F = icosahedron()
 _OCT_V = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
 _OCT_F = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 0, 5], [2, 1, 5], [3, 2, 5], [0, 3, 5]], np.int64)
 
