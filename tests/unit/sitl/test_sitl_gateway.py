@@ -257,3 +257,16 @@ def test_signing_rejects_unsigned_state_changes() -> None:
     ack_frame = r.gcs.pack(r.gcs.of_type("COMMAND_ACK")[0])
     assert ack_frame[2] & mavlink.MAVLINK_IFLAG_SIGNED
     assert verifier.parse_buffer(ack_frame)[0].get_type() == "COMMAND_ACK"
+
+
+def test_a_takeoff_right_after_a_parameter_set_uses_the_new_value() -> None:
+    """MAVSDK's set_takeoff_altitude, arm and takeoff can all arrive before the next control step: the takeoff
+    must climb to the MIS_TAKEOFF_ALT just set, not the one before (it stopped at 2.5 m once in CI)."""
+    r = Rig()
+    r.feed(r.client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 10.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    assert r.cmd(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+    assert r.cmd(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, NAN).result == 0
+    for _ in range(250 * 20):  # 20 s at 250 Hz
+        r.step()
+    rel = r.gcs.of_type("GLOBAL_POSITION_INT")[-1].relative_alt / 1000.0
+    assert rel > 9.0, f"climbed to {rel:.1f} m, not MIS_TAKEOFF_ALT 10 m"

@@ -654,7 +654,8 @@ class Autopilot:
                 self._enter_mode(FlightMode.AUTO_LOITER)
 
     # ================================================================== loops
-    def _refresh_settings(self) -> None:
+    def refresh_settings(self) -> None:
+        """Read the parameters again now (after a PARAM_SET: a command in the same instant must see it)."""
         s = self.params.settings
         if s is not self.settings:
             self.settings = s
@@ -669,7 +670,7 @@ class Autopilot:
         self.est = est
         self.battery_remaining = battery_remaining
         self.battery_voltage_v = battery_voltage_v
-        self._refresh_settings()
+        self.refresh_settings()
         was_landed = self.landed
         landed = self.land_detector.update(
             t_s,

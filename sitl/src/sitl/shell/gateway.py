@@ -285,6 +285,8 @@ class Gateway:
             before = params.version
             outcome = params.set(name, value)
             outcome_ok, reason = outcome.accepted, outcome.reason
+            if outcome.accepted:
+                self.ap.refresh_settings()  # a takeoff sent right after MIS_TAKEOFF_ALT must not use the old one
             if outcome.accepted and params.version != before and self.persist_params is not None:
                 self.persist_params(params.changed_from_default())
         if outcome_ok:
