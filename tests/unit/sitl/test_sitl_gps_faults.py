@@ -51,7 +51,8 @@ def test_a_stuck_fix_is_fused_while_hovering_and_rejected_once_the_vehicle_moves
     for _ in range(round(30.0 / DT)):  # 30 s of hover: nothing to notice
         t += DT
         s = est.update(at(t, 0.0))
-        assert s.gps_ok and s.pos_valid
+        assert s.gps_ok
+        assert s.pos_valid
     assert est.rejected_samples == 0
     assert est.gps_report is not None
     assert (est.gps_report.lat_deg, est.gps_report.lon_deg) == pytest.approx((HOME.lat_deg, HOME.lon_deg))
@@ -68,7 +69,8 @@ def test_a_stuck_fix_is_fused_while_hovering_and_rejected_once_the_vehicle_moves
             assert s.pos_ned_m[0] >= gate * 0.9, "and was rejected only once it was a gate away from the fix"
         if invalid_at is None and not s.pos_valid:
             invalid_at = t
-    assert rejected_at is not None and invalid_at is not None
+    assert rejected_at is not None
+    assert invalid_at is not None
     assert 30.5 < rejected_at < 35.0
     assert invalid_at - rejected_at == pytest.approx(NO_AID_TIMEOUT_S, abs=0.05)
     # after the rejection it dead-reckons: the error is frozen at what it was, not growing with the distance flown
@@ -80,7 +82,8 @@ def test_a_stuck_fix_is_fused_while_hovering_and_rejected_once_the_vehicle_moves
     est.gps_fault = FailureType.OK
     t += DT
     s = est.update(at(t, north))
-    assert s.gps_ok and s.pos_valid
+    assert s.gps_ok
+    assert s.pos_valid
     assert s.pos_ned_m[0] == pytest.approx(north)
     assert est.gps_report is None
 
@@ -164,7 +167,8 @@ def go_north(rig: Rig, metres: float) -> None:
 
 
 def gps_healthy(rig: Rig) -> bool:
-    return bool(rig.gw.encoder.build(MsgId.SYS_STATUS).onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_SENSOR_GPS)
+    health = rig.gw.encoder.build(MsgId.SYS_STATUS).onboard_control_sensors_health
+    return bool(health & mavlink.MAV_SYS_STATUS_SENSOR_GPS)
 
 
 def test_stuck_gps_holds_a_hover_then_a_move_is_rejected_and_the_failsafe_descends() -> None:
@@ -176,7 +180,8 @@ def test_stuck_gps_holds_a_hover_then_a_move_is_rejected_and_the_failsafe_descen
     run(v, 8.0)
     # hovering on a frozen fix: nothing to notice, the hold stays put
     assert ap.mode is FlightMode.AUTO_LOITER
-    assert ap.position_valid and gps_healthy(rig)
+    assert ap.position_valid
+    assert gps_healthy(rig)
     assert math.hypot(*pos(v)[:2]) < 0.5
     gps = rig.gw.encoder.build(MsgId.GPS_RAW_INT)
     assert (gps.fix_type, gps.lat, gps.lon) == (mavlink.GPS_FIX_TYPE_3D_FIX, frozen.lat, frozen.lon)
@@ -207,7 +212,8 @@ def test_garbage_gps_shows_random_fixes_and_the_failsafe_descends_after_the_time
     assert gps.fix_type == mavlink.GPS_FIX_TYPE_3D_FIX, "the receiver claims a fix"
     assert abs(gps.lat * 1e-7 - v.home.lat_deg) > 0.01 or abs(gps.lon * 1e-7 - v.home.lon_deg) > 0.01
     assert not gps_healthy(rig)
-    assert ap.mode is FlightMode.AUTO_LOITER and ap.position_valid  # dead reckoning, still holding
+    assert ap.mode is FlightMode.AUTO_LOITER  # dead reckoning, still holding
+    assert ap.position_valid
     run(v, NO_AID_TIMEOUT_S)
     assert not ap.position_valid
     assert ap.mode is FlightMode.AUTO_LAND
@@ -228,7 +234,8 @@ def test_intermittent_gps_with_short_gaps_keeps_holding() -> None:
         worst = max(worst, math.hypot(*pos(v)[:2]))
         assert ap.position_valid, f"a gap outlasted EKF2_NOAID_TOUT at {v.t_s:.1f} s (seed 2 has none)"
     assert v.estimator.gaps >= 5
-    assert no_fix_seen and fix_seen
+    assert no_fix_seen
+    assert fix_seen
     assert ap.mode is FlightMode.AUTO_LOITER
     assert worst < 1.0, f"the hold wandered {worst:.2f} m through the gaps"
     assert ap.inject_failure(FailureUnit.SENSOR_GPS, FailureType.OK, 0) is MavResult.ACCEPTED
