@@ -127,6 +127,8 @@ class PoseSource(enum.Enum):
 POSE_TOPICS = {PoseSource.GROUND_TRUTH: "/uav/ground_truth/odom", PoseSource.AUTOPILOT: "/uav/autopilot/odom"}
 #: The autopilot_odometry node's status topic.
 ESTIMATE_STATUS_TOPIC = "/autopilot_odometry/status"
+#: The autopilot's own position target (autopilot_odometry), for the scorer's ``autopilot_tracking``.
+TARGET_TOPIC = "/autopilot_odometry/target"
 
 
 def _check_polygon(name: str, polygon: tuple[Point2, ...]) -> None:
@@ -770,7 +772,7 @@ def played_topics(scenario: Scenario) -> tuple[str, ...]:
     scorer regenerate everything else)."""
     topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
     if scenario.pose_source is PoseSource.AUTOPILOT:
-        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC, TARGET_TOPIC]
     return tuple(topics)
 
 
@@ -779,7 +781,7 @@ def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     spec = scenario.recording
     topics = list(RECORDING_PRESETS["report"])
     if scenario.pose_source is PoseSource.AUTOPILOT:
-        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC, TARGET_TOPIC]
     if scenario.perception.boxes_topic not in topics:
         topics.append(scenario.perception.boxes_topic)  # the detector's own output, as it came
     if spec.preset == "replay":
