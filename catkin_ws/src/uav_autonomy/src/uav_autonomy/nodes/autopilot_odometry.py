@@ -62,7 +62,7 @@ from uav_autonomy.core.pose_estimate import (
 from uav_autonomy.errors import InvalidInputError, UavAutonomyError
 from uav_autonomy.mavlink.link import MavlinkLink
 from uav_autonomy.ros.conversions import odometry_msg
-from uav_autonomy.ros.params import AutopilotOdometryParams, autonomy_section
+from uav_autonomy.ros.params import AutopilotOdometryParams, mavlink_node_section
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import EstimateStatus
@@ -327,7 +327,8 @@ class AutopilotOdometryNode:
         if state in (EstimateState.STALE, EstimateState.INVALID):
             rospy.logwarn(text + " (the autonomy must not fly on it)")
         else:
-            rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time by {self.sync.method})"))
+            timing = "the autopilot's clock (shared)" if self.cfg.time_sync == "shared" else f"by {self.sync.method}"
+            rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time {timing})"))
 
 
 def _stamp_s(msg: object) -> float:
@@ -343,10 +344,7 @@ def main() -> None:
 
 def _run() -> None:
     params = node_params(AutopilotOdometryParams, "autopilot_odometry")
-    overrides = dict(params.overrides)
-    if params.connection_url:
-        overrides["connection_url"] = params.connection_url
-    config = autonomy_section(AutopilotOdometryConfig, "autopilot_odometry", params.config, overrides)
+    config = mavlink_node_section(AutopilotOdometryConfig, "autopilot_odometry", params)
     node = AutopilotOdometryNode(config, params.odom_topic)
     node.start()
     rospy.on_shutdown(node.shutdown)
