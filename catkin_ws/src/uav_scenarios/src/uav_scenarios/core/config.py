@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from mavlink_router.core.impairment import ImpairmentConfig
 from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.validate import require_in_range
 from uav_scenarios.core.faults import not_simulated
@@ -398,18 +399,15 @@ class LinkImpairmentSpec:
     direction: Literal["both", "in", "out"] = "both"
 
     def __post_init__(self) -> None:
-        require_in_range("loss_pct", self.loss_pct, 0.0, 100.0)
-        require_in_range("reorder_pct", self.reorder_pct, 0.0, 100.0)
-        for name in ("delay_ms", "jitter_ms", "reorder_delay_ms"):
-            require_in_range(name, getattr(self, name), 0.0, 60_000.0)
-        require_in_range("loss_burst", self.loss_burst, 0.0, 1e6)
-        if self.loss_burst > 0.0 and 0.0 < self.loss_pct < 100.0:
-            least = max(1.0, self.loss_pct / (100.0 - self.loss_pct))
-            if self.loss_burst < least:
-                msg = (
-                    f"loss_burst must be 0 (independent losses) or >= {least:.3g} frames for loss_pct {self.loss_pct:g}"
-                )
-                raise ValueError(msg)
+        # the router's own check, once (its message names the key; the loader adds the path)
+        ImpairmentConfig(
+            loss_pct=self.loss_pct,
+            loss_burst=self.loss_burst,
+            delay_ms=self.delay_ms,
+            jitter_ms=self.jitter_ms,
+            reorder_pct=self.reorder_pct,
+            reorder_delay_ms=self.reorder_delay_ms,
+        )
 
 
 @dataclass(frozen=True)
