@@ -72,7 +72,10 @@ def test_pose_source_defaults_to_ground_truth_and_names_its_topic(tmp_path: Path
             r"link\.endpoints\.controller.*unknown key.*'loss_percent'",
         ),
         ("link: {endpoints: {radio: {loss_pct: 20}}}", r"link.*unknown endpoint\(s\) \['radio'\]"),
-        ("link: {endpoints: {gcs: {loss_pct: 90, loss_burst: 2}}}", r"loss_burst must be 0 .* or >= 9 frames"),
+        (
+            "link: {endpoints: {gcs: {loss_pct: 90, loss_burst: 2}}}",
+            r"loss_burst 2 is too short for loss_pct 90: a mean burst of at least 9 frames",
+        ),
         ("link: {endpoints: {gcs: {direction: sideways}}}", r"link\.endpoints\.gcs\.direction"),
         ("link: {seed: -3}", r"seed must be >= 0"),
     ],

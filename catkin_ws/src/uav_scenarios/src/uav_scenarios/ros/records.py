@@ -29,6 +29,7 @@ from uav_scenarios.core.scoring.types import (
     GridSnapshot,
     PathSample,
     PoseSample,
+    TargetSample,
     Track,
     TrackFrame,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "object_states_from_msg",
     "pose_from_odometry",
     "stamp_s",
+    "target_from_msg",
     "tracks_from_msg",
 ]
 
@@ -187,6 +189,11 @@ def fault_from_msg(msg: Any) -> FaultSample:
         detail=str(msg.detail),
         answered_s=float(msg.answered_s),
     )
+
+
+def target_from_msg(msg: Any) -> TargetSample:
+    """``geometry_msgs/PointStamped`` (the autopilot's position target, map ENU) -> target sample."""
+    return TargetSample(t_s=stamp_s(msg.header.stamp), position_m=(msg.point.x, msg.point.y, msg.point.z))
 
 
 def path_from_msg(msg: Any) -> PathSample:
