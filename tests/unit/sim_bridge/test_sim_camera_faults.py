@@ -84,13 +84,19 @@ def test_garbage_hands_the_frame_back_for_its_pixels_to_be_replaced() -> None:
 
     rng = np.random.default_rng(1)
     color = garbage_color(rng, 12, 16)
-    assert color.shape == (12, 16, 3) and color.dtype == np.uint8
+    assert color.shape == (12, 16, 3)
+    assert color.dtype == np.uint8
     assert len(np.unique(color)) > 150  # noise over the whole range, not a constant image
     depth = garbage_depth(rng, 12, 16, 0.5, 300.0)
-    assert depth.shape == (12, 16) and depth.dtype == np.float32
-    assert np.all(np.isfinite(depth)) and depth.min() >= 0.5 and depth.max() < 300.0
+    assert depth.shape == (12, 16)
+    assert depth.dtype == np.float32
+    assert np.all(np.isfinite(depth))
+    assert depth.min() >= 0.5
+    assert depth.max() < 300.0
     assert depth.std() > 50.0
-    np.testing.assert_array_equal(garbage_color(np.random.default_rng(9), 4, 4), garbage_color(np.random.default_rng(9), 4, 4))
+    np.testing.assert_array_equal(
+        garbage_color(np.random.default_rng(9), 4, 4), garbage_color(np.random.default_rng(9), 4, 4)
+    )
 
 
 def test_intermittent_drops_at_its_rate_deterministically_by_seed() -> None:
@@ -108,7 +114,8 @@ def test_intermittent_drops_at_its_rate_deterministically_by_seed() -> None:
     m = _model(7)
     m.set("forward", "intermittent")
     delivered = [r.frame for k in range(50) if (r := m.apply("forward", k)).verdict is Verdict.DELIVERED]
-    assert delivered and delivered == sorted(delivered)
+    assert delivered
+    assert delivered == sorted(delivered)
     m.set("forward", "stuck")
     assert m.apply("forward", 99).frame == delivered[-1]
     # one camera's draws do not shift another's
@@ -138,7 +145,8 @@ def test_bad_input_is_a_clear_error() -> None:
         garbage_color(np.random.default_rng(0), 0, 4)
     with pytest.raises(CameraFaultError, match="near_m < far_m"):
         garbage_depth(np.random.default_rng(0), 4, 4, 5.0, math.inf)
-    assert issubclass(CameraFaultError, SimBridgeError) and issubclass(CameraFaultError, ValueError)
+    assert issubclass(CameraFaultError, SimBridgeError)
+    assert issubclass(CameraFaultError, ValueError)
     assert CAMERA_FAULT_TYPES == ("ok", "off", "stuck", "garbage", "intermittent")
     with pytest.raises(ConfigError, match="intermittent_drop_probability"):
         from_mapping(SimBridgeConfig, {"camera_faults": {"intermittent_drop_probability": 0.0}}, source="t.yaml")
@@ -183,13 +191,17 @@ def test_the_engine_applies_each_fault_to_what_the_camera_delivers(engine: Bridg
         return fwd[0] if fwd else None
 
     good = frame()
-    assert good is not None and good.delivered and good.fault == "" and good.detections
+    assert good is not None
+    assert good.delivered
+    assert good.fault == ""
+    assert good.detections
     assert good.detector_boxes is good.detections
 
     eng.set_camera_fault("forward", "stuck")
     for dx in (2.0, 4.0):
         s = frame(dx)
-        assert s.fault == "stuck" and s.delivered
+        assert s.fault == "stuck"
+        assert s.delivered
         assert s.t_capture_s == pytest.approx(t[0])  # the new stamp...
         np.testing.assert_array_equal(s.frame.color_rgb, good.frame.color_rgb)  # ... on the old image
         np.testing.assert_array_equal(s.depth_m, good.depth_m)
@@ -197,25 +209,35 @@ def test_the_engine_applies_each_fault_to_what_the_camera_delivers(engine: Bridg
         assert s.detections is not None  # the scene's truth is still the current view's
     eng.set_camera_fault("forward", "ok")
     live = frame(6.0)
-    assert live.fault == "" and not np.array_equal(live.frame.color_rgb, good.frame.color_rgb)
+    assert live.fault == ""
+    assert not np.array_equal(live.frame.color_rgb, good.frame.color_rgb)
 
     eng.set_camera_fault("forward", "off")
     off = frame()
-    assert off is not None and off.fault == "off" and not off.delivered  # no images, info or boxes...
-    assert off.frame is None and off.depth_m is None and off.detector_boxes is None
+    assert off is not None
+    assert off.fault == "off"
+    assert not off.delivered
+    assert off.frame is None
+    assert off.depth_m is None
+    assert off.detector_boxes is None
     assert off.detections  # ... the truth remains, for the scorer
 
     eng.set_camera_fault("forward", "garbage")
     g = frame()
-    assert g.fault == "garbage" and g.delivered and g.detector_boxes == []
-    assert g.frame.color_rgb.shape == good.frame.color_rgb.shape and g.frame.color_rgb.dtype == np.uint8
-    assert g.depth_m.shape == good.depth_m.shape and g.depth_m.dtype == np.float32
+    assert g.fault == "garbage"
+    assert g.delivered
+    assert g.detector_boxes == []
+    assert g.frame.color_rgb.shape == good.frame.color_rgb.shape
+    assert g.frame.color_rgb.dtype == np.uint8
+    assert g.depth_m.shape == good.depth_m.shape
+    assert g.depth_m.dtype == np.float32
     assert np.abs(np.diff(g.frame.color_rgb.astype(np.int16), axis=1)).mean() > 60.0  # noise, not a picture
     assert np.abs(np.diff(good.frame.color_rgb.astype(np.int16), axis=1)).mean() < 30.0
 
     eng.set_camera_fault("forward", "intermittent")
     verdicts = [f.fault for f in (frame() for _ in range(40))]
-    assert 8 < verdicts.count("dropped") < 32 and verdicts.count("dropped") + verdicts.count("") == 40
+    assert 8 < verdicts.count("dropped") < 32
+    assert verdicts.count("dropped") + verdicts.count("") == 40
     eng.set_camera_fault("forward", "ok")
     with pytest.raises(CameraFaultError, match="unknown camera 'down'"):
         eng.set_camera_fault("down", "off")

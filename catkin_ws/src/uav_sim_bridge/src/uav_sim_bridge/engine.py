@@ -485,7 +485,7 @@ class BridgeEngine:
         """
         self.camera_faults.set(camera, failure_type)
 
-    def _faulted(self, out: CameraOutput) -> CameraOutput | None:
+    def _faulted(self, out: CameraOutput) -> CameraOutput | None:  # noqa: PLR0911 - one return per verdict
         """A captured frame through its camera's fault (None: nothing of it is left to publish)."""
         name = out.camera.name
         complete = out.frame is not None and out.depth_m is not None
