@@ -58,10 +58,12 @@ def test_camera_faults_load_and_bad_ones_name_the_key(tmp_path: Path) -> None:
 
 
 def test_camera_actions_name_the_bridge_camera_and_clear_with_ok() -> None:
-    actions = fault_actions([
-        FaultSpec(at_s=200.0, unit="camera_nadir", type="stuck", duration_s=30.0),
-        FaultSpec(at_s=120.0, unit="gps", type="off"),
-    ])
+    actions = fault_actions(
+        [
+            FaultSpec(at_s=200.0, unit="camera_nadir", type="stuck", duration_s=30.0),
+            FaultSpec(at_s=120.0, unit="gps", type="off"),
+        ]
+    )
     assert [(a.at_s, a.label, a.camera) for a in actions] == [
         (120.0, "gps off", ""),
         (200.0, "camera_nadir stuck", "nadir"),
@@ -141,9 +143,7 @@ def test_a_camera_fault_in_the_faults_section_with_what_followed() -> None:
     events = [e["what"] for e in m["events"]]
     assert "fault camera_nadir stuck: ACCEPTED" in events
     stuck, clear, off = m["faults"]
-    assert [c["what"] for c in stuck["followed"]] == [
-        "camera nadir: image frozen (the same picture 3 frames in a row)"
-    ]
+    assert [c["what"] for c in stuck["followed"]] == ["camera nadir: image frozen (the same picture 3 frames in a row)"]
     assert stuck["camera"]["frames"] == 24  # captured after it applied (10 s), before the clear
     assert stuck["camera"]["distinct_images"] == 1
     assert stuck["camera"]["rate_before_hz"] == pytest.approx(5.0)
