@@ -57,6 +57,16 @@ def test_camera_faults_load_and_bad_ones_name_the_key(tmp_path: Path) -> None:
     assert set(CAMERA) == {"camera_nadir", "camera_forward"}
 
 
+def test_the_camera_faults_stress_preset_scripts_both_cameras() -> None:
+    s = load_scenario(
+        REPO / "config/scenarios/loiter.yaml", stress=("camera_faults",), stress_dir=REPO / "config/stress"
+    )
+    assert [(f.at_s, f.unit, f.type, f.duration_s) for f in s.faults] == [
+        (60.0, "camera_nadir", "intermittent", 30.0),
+        (120.0, "camera_forward", "stuck", 20.0),
+    ]
+
+
 def test_camera_actions_name_the_bridge_camera_and_clear_with_ok() -> None:
     actions = fault_actions(
         [
