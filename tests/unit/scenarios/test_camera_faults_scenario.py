@@ -17,6 +17,7 @@ from uav_scenarios.core.scoring.cameras import CameraFrameSample, CameraWatch, n
 from uav_scenarios.core.scoring.faults import fault_summary
 from uav_scenarios.core.scoring.run import RunScorer
 from uav_scenarios.core.scoring.types import FaultSample, SceneTruth
+from uav_scenarios.report.html import faults_table
 
 
 def write(tmp_path: Path, body: str) -> Path:
@@ -162,6 +163,14 @@ def test_a_camera_fault_in_the_faults_section_with_what_followed() -> None:
     assert [c["what"] for c in off["followed"]] == ["camera nadir: frames stopped"]
     assert off["camera"]["frames"] == 0
     assert off["followed"][0]["after_s"] == pytest.approx(0.8)  # the last frame (16.8 s) + 1 s of silence
+    # the report's faults section says it in words
+    table = faults_table(m)
+    assert table.count("<tr>") == 4  # the header and three commands
+    assert "camera_nadir stuck" in table
+    assert "+0.2 s camera nadir: image frozen (the same picture 3 frames in a row)" in table
+    assert "24 frames (4.8 Hz, before 5 Hz), 1 distinct, 0 noise" in table
+    assert "camera_nadir ok (end of the fault)" in table
+    assert faults_table({"faults": []}) == ""
     # an autopilot fault carries no camera counts
     (gps,) = fault_summary([FaultSample(1.0, 0, 1.0, "gps", "off")], [], start_s=0.0, end_s=2.0, cameras=CameraWatch())
     assert "camera" not in gps
