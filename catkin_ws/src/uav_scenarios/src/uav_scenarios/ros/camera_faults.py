@@ -70,7 +70,7 @@ class CameraFaultCaller:
 
     def _run(self) -> None:
         self._connect()
-        while not self._stop.is_set() and self.schedule.next_at_s is not None and not self.problem:
+        while not self._stop.is_set() and self.schedule.next_at_s is not None:
             elapsed = self.elapsed_s()
             if elapsed is not None:
                 for action in self.schedule.due(elapsed):

@@ -250,6 +250,13 @@ class _FaultRequest:
     req: SetCameraFaultRequest
     done: threading.Event
     response: SetCameraFaultResponse | None = None
+    #: The caller gave up waiting: the loop must not apply it (its answer said it was not applied).
+    abandoned: bool = False
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+#: How long (wall seconds) ~set_camera_fault waits for the main loop (a settled lockstep loop can be slow).
+_FAULT_ANSWER_S = 30.0
 
 
 class SimBridgeNode:
@@ -414,13 +421,21 @@ class SimBridgeNode:
     def _on_set_camera_fault(self, req: SetCameraFaultRequest) -> SetCameraFaultResponse:
         item = _FaultRequest(req, threading.Event())
         self._requests.put(item)
-        if not item.done.wait(5.0) or item.response is None:
-            return SetCameraFaultResponse(
-                result="DENIED", detail="the bridge loop did not answer within 5 s", applied_s=math.nan
-            )
-        return item.response
+        item.done.wait(_FAULT_ANSWER_S)
+        with item.lock:
+            if item.response is None:  # too late: never applied, and the loop will not apply it now
+                item.abandoned = True
+                detail = f"the bridge loop did not take it within {_FAULT_ANSWER_S:.0f} s: not applied"
+                return SetCameraFaultResponse(result="DENIED", detail=detail, applied_s=math.nan)
+            return item.response
 
     def _apply_camera_fault(self, item: _FaultRequest) -> None:
+        with item.lock:
+            if not item.abandoned:
+                self._apply_camera_fault_locked(item)
+        item.done.set()
+
+    def _apply_camera_fault_locked(self, item: _FaultRequest) -> None:
         r = item.req
         applied_s = self._processed_t  # frames of the states processed after it carry the fault
         try:
@@ -431,7 +446,6 @@ class SimBridgeNode:
         else:
             rospy.logwarn("camera %s: fault %s from %.2f s (simulation time)", r.camera, r.type, applied_s)
             item.response = SetCameraFaultResponse(result="ACCEPTED", detail="", applied_s=applied_s)
-        item.done.set()
 
     def _drain_requests(self) -> None:
         while True:

@@ -42,7 +42,8 @@ def fault_summary(
         start_s: the run's start (``run_t_s`` = ``t_s - start_s``).
         end_s: the run's end (the last fault's window ends there).
         cameras: the watched cameras' frames: a camera fault gets ``camera``, :meth:`CameraWatch.window` of its
-            camera from the time the bridge applied it (``answered_s``; else when it was sent) to the next fault.
+            camera from the time the bridge applied it (``answered_s``; else when it was sent) to the next fault,
+            if any frame of that camera was seen at all.
 
     Returns:
         One entry per fault, in time order: ``t_s``, ``run_t_s``, ``at_s`` (when it was due), unit, type,
@@ -61,7 +62,7 @@ def fault_summary(
         ]
         entry: dict[str, Any] = {}
         cam = camera_name(f.unit)
-        if cam and cameras is not None:
+        if cam and cameras is not None and cam in cameras.cameras:  # (a replay without its images: no counts)
             applied = f.answered_s if math.isfinite(f.answered_s) and f.answered_s >= f.t_s else f.t_s
             entry["camera"] = cameras.window(cam, applied, until)
         out.append(
