@@ -158,7 +158,7 @@ def project_packages(repo: Path) -> list[Package]:
         src,
         frozenset(
             {"uav_common", "uav_autonomy", "uav_perception", "uav_sim_bridge", *NUMERIC, "matplotlib", "motmetrics"}
-            | {"pymavlink"}
+            | {"pymavlink", "mavlink_router"}
             | {"pycocotools", "rosbags"}
             | {*ROS_COMMON, "rosgraph", "rosgraph_msgs", "rosbag"}
         ),

@@ -17,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from sitl.config import SitlConfig, load_sitl_config
+from sitl.config import EstimatorPreset, SitlConfig, load_sitl_config
 from sitl.errors import LinkError, SitlConfigError, SitlError
 from uav_common.exit_codes import ExitCode
 
@@ -81,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-params-file", action="store_true", help="do not persist parameters")
     p.add_argument("--reset-params", action="store_true", help="delete the parameter file first (back to defaults)")
     p.add_argument("--estimator", choices=("truth", "noisy"), help="report the truth or truth + seeded noise")
+    p.add_argument(
+        "--estimator-preset",
+        choices=tuple(e.value for e in EstimatorPreset),
+        help="the noisy estimator with a preset's numbers (RTK fixed, single-band GPS, poor GPS); implies noisy",
+    )
     p.add_argument("--seed", type=int, help="estimator noise seed")
     p.add_argument("--wind", metavar="SPEED_MPS,FROM_DEG", help="mean wind at wind.reference_height_m, e.g. 8,270")
     p.add_argument(
@@ -139,6 +144,9 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:  # noqa: PL
         out["params.file"] = str(args.params_file)
     if args.no_params_file:
         out["params.file"] = None
+    if args.estimator_preset is not None:
+        out["estimator.preset"] = args.estimator_preset
+        out["estimator.mode"] = "noisy"
     if args.estimator is not None:
         out["estimator.mode"] = args.estimator
     if args.seed is not None:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from sitl.core.estimator import NoiseModel
 from sitl.core.params import ParamTable
 from sitl.core.personality import ConfigDefaults, Personality, personality_named
 from sitl.errors import SitlConfigError
@@ -26,10 +27,12 @@ from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_m
 from uav_common.validate import require, require_port
 
 __all__ = [
+    "ESTIMATOR_PRESETS",
     "AutopilotName",
     "BatteryConfig",
     "EstimatorConfig",
     "EstimatorMode",
+    "EstimatorPreset",
     "FailsafeAction",
     "FailsafeConfig",
     "HomeConfig",
@@ -293,12 +296,84 @@ class EstimatorMode(enum.Enum):
     NOISY = "noisy"
 
 
+class EstimatorPreset(enum.Enum):
+    """A named set of the noisy estimator's numbers (:data:`ESTIMATOR_PRESETS`)."""
+
+    RTK = "rtk"
+    GPS = "gps"
+    POOR_GPS = "poor_gps"
+
+
+#: The noisy estimator's presets: ``estimator.preset`` fills in every key it does not set explicitly.
+#: Per-axis standard deviations; a circular Gaussian's CEP (50 %) is 1.18 of its per-axis sigma. Where the
+#: numbers come from is in docs/sitl.md "Estimator presets".
+ESTIMATOR_PRESETS: dict[EstimatorPreset, dict[str, float]] = {
+    # u-blox ZED-F9P with RTK fixed (datasheet: 0.01 m + 1 ppm CEP; baseline within ~10 km -> <= 2 cm CEP);
+    # the heading still comes from a well-calibrated compass.
+    EstimatorPreset.RTK: {
+        "horizontal_noise_m": 0.02,
+        "vertical_noise_m": 0.03,
+        "velocity_noise_mps": 0.02,
+        "attitude_noise_rad": 0.003,
+        "noise_correlation_s": 10.0,
+        "horizontal_bias_m": 0.02,
+        "vertical_bias_m": 0.03,
+        "heading_bias_deg": 1.5,
+        "heading_noise_deg": 0.5,
+        "heading_correlation_s": 60.0,
+        "gps_dropouts_per_hour": 0.0,
+        "gps_dropout_duration_s": 5.0,
+        "dropout_drift_mps": 0.3,
+    },
+    # single-band u-blox M8N / M9N under open sky (datasheets: 2.5 m / 1.5 m CEP): 2.0 m CEP, half of it a
+    # per-run bias and half a wander correlated over 30 s (EKF2 smooths the receiver's jitter, not its slow
+    # ionosphere / multipath errors); a compass heading off by ~3 degrees (declination, calibration)
+    EstimatorPreset.GPS: {
+        "horizontal_noise_m": 1.2,
+        "vertical_noise_m": 1.5,
+        "velocity_noise_mps": 0.1,
+        "attitude_noise_rad": 0.005,
+        "noise_correlation_s": 30.0,
+        "horizontal_bias_m": 1.2,
+        "vertical_bias_m": 1.5,
+        "heading_bias_deg": 3.0,
+        "heading_noise_deg": 1.0,
+        "heading_correlation_s": 60.0,
+        "gps_dropouts_per_hour": 2.0,
+        "gps_dropout_duration_s": 3.0,
+        "dropout_drift_mps": 0.3,
+    },
+    # single-band GNSS near trees and buildings (multipath, fewer satellites): 4.2 m CEP, a compass near
+    # metal or power lines (6 degrees), a fix lost every ~5 minutes for 8 s
+    EstimatorPreset.POOR_GPS: {
+        "horizontal_noise_m": 2.5,
+        "vertical_noise_m": 2.5,
+        "velocity_noise_mps": 0.3,
+        "attitude_noise_rad": 0.01,
+        "noise_correlation_s": 20.0,
+        "horizontal_bias_m": 2.5,
+        "vertical_bias_m": 2.0,
+        "heading_bias_deg": 6.0,
+        "heading_noise_deg": 2.0,
+        "heading_correlation_s": 30.0,
+        "gps_dropouts_per_hour": 12.0,
+        "gps_dropout_duration_s": 8.0,
+        "dropout_drift_mps": 0.5,
+    },
+}
+
+
 @dataclass(frozen=True)
 class EstimatorConfig:
-    """What the autopilot believes: the truth, or truth + seeded noise, bias and GPS dropouts."""
+    """What the autopilot believes: the truth, or truth + seeded noise, bias, heading error and GPS dropouts.
+
+    ``preset`` names a set of the noise numbers (:data:`ESTIMATOR_PRESETS`); :func:`load_sitl_config` fills
+    them in for every key the configuration does not set itself (:meth:`from_preset` does it in code).
+    """
 
     mode: EstimatorMode = EstimatorMode.TRUTH
     seed: int = 0
+    preset: EstimatorPreset | None = None
     horizontal_noise_m: float = 0.05
     vertical_noise_m: float = 0.08
     velocity_noise_mps: float = 0.03
@@ -306,6 +381,9 @@ class EstimatorConfig:
     noise_correlation_s: float = 1.0
     horizontal_bias_m: float = 0.2
     vertical_bias_m: float = 0.3
+    heading_bias_deg: float = 0.0
+    heading_noise_deg: float = 0.0
+    heading_correlation_s: float = 60.0
     gps_dropouts_per_hour: float = 0.0
     gps_dropout_duration_s: float = 5.0
     dropout_drift_mps: float = 0.3
@@ -323,9 +401,64 @@ class EstimatorConfig:
         ):
             value = getattr(self, name)
             require(0.0 <= value <= 1000.0, f"'{name}' must be in [0, 1000], got {value}")
+        for name in ("heading_bias_deg", "heading_noise_deg"):
+            value = getattr(self, name)
+            require(0.0 <= value <= 90.0, f"'{name}' must be in [0, 90] degrees, got {value}")
         require(0.01 <= self.noise_correlation_s <= 1000.0, "'noise_correlation_s' must be in [0.01, 1000]")
+        require(
+            0.01 <= self.heading_correlation_s <= 3600.0,
+            f"'heading_correlation_s' must be in [0.01, 3600], got {self.heading_correlation_s}",
+        )
         require(0.1 <= self.gps_dropout_duration_s <= 3600.0, "'gps_dropout_duration_s' must be in [0.1, 3600]")
         require(0 <= self.seed < 2**63, "'seed' must be a non-negative integer")
+        require(
+            self.preset is None or self.mode is EstimatorMode.NOISY,
+            f"'preset' {self.preset.value if self.preset else ''!r} needs 'mode: noisy' (mode truth reports the "
+            "truth and would ignore it); set mode: noisy or remove the preset (preset: null)",
+        )
+
+    def noise_model(self) -> NoiseModel | None:
+        """The estimator core's noise model (None: the truth)."""
+        if self.mode is EstimatorMode.TRUTH:
+            return None
+        return NoiseModel(
+            self.horizontal_noise_m,
+            self.vertical_noise_m,
+            self.velocity_noise_mps,
+            self.attitude_noise_rad,
+            self.noise_correlation_s,
+            self.horizontal_bias_m,
+            self.vertical_bias_m,
+            self.gps_dropouts_per_hour,
+            self.gps_dropout_duration_s,
+            self.dropout_drift_mps,
+            math.radians(self.heading_bias_deg),
+            math.radians(self.heading_noise_deg),
+            self.heading_correlation_s,
+        )
+
+    @classmethod
+    def from_preset(cls, preset: EstimatorPreset | str, **overrides: Any) -> EstimatorConfig:
+        """A noisy estimator with ``preset``'s numbers; ``overrides`` win over them."""
+        p = EstimatorPreset(preset)
+        values: dict[str, Any] = {"mode": EstimatorMode.NOISY, **ESTIMATOR_PRESETS[p], **overrides}
+        return cls(preset=p, **values)
+
+
+def _apply_estimator_preset(data: dict[str, Any], source: str) -> None:
+    """Fill ``estimator.preset``'s numbers into ``data`` wherever it does not set a key itself."""
+    est = data.get("estimator")
+    if not isinstance(est, dict) or est.get("preset") is None:
+        return
+    name = est["preset"]
+    choices = ", ".join(p.value for p in EstimatorPreset)
+    try:
+        preset = EstimatorPreset(name)
+    except ValueError:
+        msg = f"{source}: 'estimator.preset': unknown preset {name!r}; choose one of {choices} (docs/sitl.md)"
+        raise SitlConfigError(msg) from None
+    for key, value in ESTIMATOR_PRESETS[preset].items():
+        est.setdefault(key, value)
 
 
 @dataclass(frozen=True)
@@ -492,6 +625,7 @@ def load_sitl_config(
         _resolve_paths(extra, Path.cwd())
         data = deep_merge(data, extra)
         source += " + command-line overrides (" + ", ".join(sorted(overrides)) + ")"
+    _apply_estimator_preset(data, source)
     try:
         cfg = from_mapping(SitlConfig, data, source=source)
     except ConfigError as err:

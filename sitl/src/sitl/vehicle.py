@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from sitl.config import EstimatorMode, SitlConfig, params_for_config
+from sitl.config import SitlConfig, params_for_config
 from sitl.core.autopilot import Autopilot
 from sitl.core.battery import BatteryModel, BatteryReading, BatterySpec
 from sitl.core.control import Mixer
-from sitl.core.estimator import Estimator, NoiseModel
+from sitl.core.estimator import Estimator
 from sitl.core.params import ParamTable
 from sitl.core.state import LocalState, VehicleState
 from sitl.core.wind import WindModel, WindSpec
@@ -53,21 +53,7 @@ class Vehicle:
             BatterySpec(b.cells, b.capacity_mah, b.internal_resistance_ohm, b.ocv_curve), initial_soc=b.initial_soc
         )
         e = cfg.estimator
-        noise = None
-        if e.mode is EstimatorMode.NOISY:
-            noise = NoiseModel(
-                e.horizontal_noise_m,
-                e.vertical_noise_m,
-                e.velocity_noise_mps,
-                e.attitude_noise_rad,
-                e.noise_correlation_s,
-                e.horizontal_bias_m,
-                e.vertical_bias_m,
-                e.gps_dropouts_per_hour,
-                e.gps_dropout_duration_s,
-                e.dropout_drift_mps,
-            )
-        self.estimator = Estimator(self.projection, noise, seed=e.seed)
+        self.estimator = Estimator(self.projection, e.noise_model(), seed=e.seed)
         self.params = params
         self.autopilot = Autopilot(
             params=params,
@@ -138,7 +124,7 @@ class Vehicle:
         if self.steps % divider == 0:
             if self.wind is not None and self.steps:
                 self._update_wind()
-            self.estimator.gps_failed = faults.gps_off
+            self.estimator.gps_fault = int(faults.gps)
             self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
             soc = 0.0 if faults.battery_off else battery.soc  # PX4's battery simulator: forced empty
             ap.outer_update(self.t_s, wall_s, self.est, soc, battery.terminal_voltage_v)

@@ -66,6 +66,16 @@ def test_loiter_on_the_autopilot_estimate_over_a_lossy_link() -> None:
     bx, by, _ = err["bias_enu_m"]
     assert math.dist((bx, by), ESTIMATOR_BIAS_ENU_M) < 0.6, err
     assert err["yaw_rms_deg"] < 2.0, err
+    # the truth against the autopilot's own position target (POSITION_TARGET_LOCAL_NED), per autopilot mode
+    at = m["autopilot_tracking"]
+    print("autopilot_tracking:", json.dumps(at))
+    assert at["samples"] > 100, at
+    # in HOLD after the takeoff the autopilot puts its estimate on the hold point: the truth is the bias away
+    hold = at["by_mode"]["AUTO.LOITER"]
+    assert hold["samples"] >= 10, at
+    assert abs(hold["horizontal_rms_m"] - math.hypot(*ESTIMATOR_BIAS_ENU_M)) < 0.6, at
+    # in OFFBOARD the controller's carrot leads the vehicle by design: that distance is no tracking error
+    assert at["by_mode"]["OFFBOARD"]["samples"] > 100, at
     # ... and the map accuracy that results: a map built on a pose 1.6 m off misses the true surfaces
     acc = m["map_accuracy"]
     assert 0.05 < acc["precision"] < 0.85, acc

@@ -1,6 +1,7 @@
 """Acceptance: MAVSDK's native ``failure`` plugin injects a GPS failure into a hovering ``uav-sitl`` in wind.
 
-As with PX4: refused while SYS_FAILURE_EN is 0, an unmodelled failure is UNSUPPORTED; GPS off makes the
+As with PX4: refused while SYS_FAILURE_EN is 0, an unmodelled failure is UNSUPPORTED; a stuck GPS while
+hovering passes EKF2's innovation gate and changes nothing (GPS_RAW_INT frozen); GPS off makes the
 position estimate invalid after EKF2_NOAID_TOUT, the failsafe descends (reported as LAND) without position
 control, so the wind carries the vehicle away while it lands, and it disarms.
 """
@@ -60,7 +61,19 @@ async def gps_off_in_flight(api_port: int, log: list[str]) -> dict[str, Any]:
         log.append(f"holding at N{before.north_m:.2f} E{before.east_m:.2f} D{before.down_m:.2f} in 6 m/s wind")
         assert math.hypot(before.north_m, before.east_m) < 2.0
 
-        await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+        # a stuck receiver while hovering: EKF2's innovation gate accepts the frozen fix, nothing to notice
+        await failure.inject(FailureUnit.SENSOR_GPS, FailureType.STUCK, 0)
+        await asyncio.sleep(0.5)
+        frozen = await tel.raw_gps()
+        await asyncio.sleep(2.0)  # 10 simulated seconds
+        later = await tel.raw_gps()
+        assert (later.latitude_deg, later.longitude_deg) == (frozen.latitude_deg, frozen.longitude_deg)
+        assert (await tel.gps_info()).num_satellites > 0, "a stuck receiver still claims its fix"
+        assert (await tel.health()).is_local_position_ok
+        assert await tel.flight_mode() == FlightMode.HOLD
+        log.append(f"GPS stuck at {frozen.latitude_deg:.7f}, {frozen.longitude_deg:.7f}: still holding")
+
+        await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)  # replaces the stuck one
         gps = await wait_for(tel.gps_info, lambda g: g.num_satellites == 0, "GPS without a fix", 10)
         log.append(f"GPS off: {gps}")
         health = await wait_for(tel.health, lambda h: not h.is_local_position_ok, "local position invalid", 20)

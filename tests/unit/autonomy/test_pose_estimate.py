@@ -22,6 +22,7 @@ from uav_autonomy.core.pose_estimate import (
     estimate_from_local_position,
     estimate_from_odometry,
     relative_yaw_rad,
+    target_from_position_target,
 )
 from uav_autonomy.errors import InvalidInputError
 from uav_common.config import ConfigError, from_mapping
@@ -259,3 +260,14 @@ def test_the_link_never_takes_a_nan_position() -> None:
     link._handle(_frame("local_position_ned", 1040, 11.0, 5.0, -20.0, 0.0, 0.0, 0.0), 3.0)
     assert link.telemetry().position_invalid == ""
     assert link.telemetry().position_s == 3.0
+
+
+def test_the_autopilots_position_target_in_map_enu() -> None:
+    # POSITION_TARGET_LOCAL_NED as the SITL and PX4 send it in HOLD: position used, velocity/accel/yaw rate ignored
+    target = target_from_position_target(12_500, 64 | 128 | 256 | 2048, (10.0, -4.0, -15.0))
+    assert target is not None
+    assert target.t_autopilot_s == pytest.approx(12.5)
+    assert target.position_enu_m == pytest.approx((-4.0, 10.0, 15.0))  # east, north, up
+    assert target_from_position_target(1, 1 | 2 | 4, (0.0, 0.0, 0.0)) is None  # no position target (on the ground)
+    assert target_from_position_target(1, 4, (1.0, 2.0, 0.0)) is None  # z ignored: not a full position target
+    assert target_from_position_target(1, 0, (math.nan, 0.0, -5.0)) is None

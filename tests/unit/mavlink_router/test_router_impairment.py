@@ -124,8 +124,8 @@ def test_the_same_seed_gives_the_same_link_and_another_seed_another() -> None:
 @pytest.mark.parametrize(
     ("kw", "text"),
     [
-        ({"loss_pct": 101.0}, "loss_pct must be from 0 to 100"),
-        ({"loss_pct": -1.0}, "loss_pct must be from 0 to 100"),
+        ({"loss_pct": 101.0}, r"loss_pct must be in \[0, 100\]"),
+        ({"loss_pct": -1.0}, r"loss_pct must be in \[0, 100\]"),
         ({"delay_ms": float("nan")}, "delay_ms"),
         ({"loss_pct": 80.0, "loss_burst": 2.0}, "at least 4 frames"),
         ({"loss_pct": 20.0, "loss_burst": 0.5}, "at least 1 frames"),

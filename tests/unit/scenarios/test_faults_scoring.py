@@ -19,6 +19,7 @@ from uav_scenarios.core.scoring.types import (
     PathSample,
     PoseSample,
     SceneTruth,
+    TargetSample,
 )
 
 
@@ -113,3 +114,23 @@ def test_setpoint_tracking_error_grows_with_the_push_off_the_path() -> None:
     assert windy["rms_m"] == pytest.approx(4.0 / math.sqrt(2), rel=0.05)
     assert 3.8 < windy["p95_m"] <= windy["max_m"] <= 4.0
     assert tracking_stats([])["samples"] == 0
+
+
+def test_autopilot_tracking_measures_the_truth_against_the_autopilots_own_target() -> None:
+    s = RunScorer(spec=ScoringSpec(), truth=SceneTruth(bounds_m=(-500.0, -500.0, 500.0, 500.0)))
+    s.add_target(TargetSample(0.0, (10.0, 20.0, 30.0)))  # a hold point: any mode, no controller needed
+    for k in range(100):  # 10 s at 50 Hz: scored at most 10 times a second
+        t = 0.02 * k
+        s.add_pose(PoseSample(t, (10.0 + 0.3, 20.0 - 0.4, 31.0)))
+        if k % 5 == 0:
+            s.add_target(TargetSample(t, (10.0, 20.0, 30.0)))
+    s.add_target(TargetSample(2.0, (math.nan, 0.0, 0.0)))  # non-finite: ignored
+    s.add_pose(PoseSample(3.5, (0.0, 0.0, 0.0)))  # the target is 1.5 s old: not scored
+    at = s.summary(4.0)["autopilot_tracking"]
+    assert at["samples"] == 20
+    assert at["horizontal_rms_m"] == pytest.approx(0.5)
+    assert at["horizontal_max_m"] == pytest.approx(0.5)
+    assert at["rms_m"] == pytest.approx(math.hypot(0.5, 1.0))
+    empty = RunScorer(spec=ScoringSpec(), truth=SceneTruth(bounds_m=(-1.0, -1.0, 1.0, 1.0))).summary(1.0)
+    assert empty["autopilot_tracking"]["samples"] == 0
+    assert math.isnan(empty["autopilot_tracking"]["horizontal_rms_m"])

@@ -72,7 +72,10 @@ def test_pose_source_defaults_to_ground_truth_and_names_its_topic(tmp_path: Path
             r"link\.endpoints\.controller.*unknown key.*'loss_percent'",
         ),
         ("link: {endpoints: {radio: {loss_pct: 20}}}", r"link.*unknown endpoint\(s\) \['radio'\]"),
-        ("link: {endpoints: {gcs: {loss_pct: 90, loss_burst: 2}}}", r"loss_burst must be 0 .* or >= 9 frames"),
+        (
+            "link: {endpoints: {gcs: {loss_pct: 90, loss_burst: 2}}}",
+            r"loss_burst 2 is too short for loss_pct 90: a mean burst of at least 9 frames",
+        ),
         ("link: {endpoints: {gcs: {direction: sideways}}}", r"link\.endpoints\.gcs\.direction"),
         ("link: {seed: -3}", r"seed must be >= 0"),
     ],
@@ -129,10 +132,14 @@ def test_runnable_stress_presets_lay_over_a_scenario(preset: str, tmp_path: Path
     # the SITL takes the preset's settings (node_params.sitl passes through to uav-sitl --set)
     argv = sitl_argv(s, PORTS, params_file=tmp_path / "p.json")
     cfg = load_from_args(build_parser().parse_args(argv[1:]))
-    if preset == "poor_gps":
+    if preset == "poor_gps":  # the SITL's own preset, its numbers filled in by the SITL
         assert cfg.estimator.mode.value == "noisy"
-        assert cfg.estimator.horizontal_noise_m == 1.5
+        assert cfg.estimator.preset is not None
+        assert cfg.estimator.preset.value == "poor_gps"
+        assert cfg.estimator.horizontal_noise_m == 2.5
+        assert cfg.estimator.heading_bias_deg == 6.0
         assert cfg.estimator.gps_dropouts_per_hour == 12.0
+        assert cfg.estimator.seed == 1
     if preset == "lossy_link":
         assert s.link.endpoints["controller"].loss_pct == 20.0
         assert s.link.endpoints["gcs"].loss_burst == 3.0
@@ -165,6 +172,15 @@ def test_a_calm_scenario_leaves_the_sitl_calm(tmp_path: Path) -> None:
     argv = sitl_argv(load_scenario(LOITER), PORTS, params_file=tmp_path / "p.json")
     assert not any(a.startswith("wind.") for a in argv)
     assert not load_from_args(build_parser().parse_args(argv[1:])).wind.enabled
+
+
+@pytest.mark.parametrize(("order", "mode"), [(("poor_gps", "calm"), "truth"), (("calm", "poor_gps"), "noisy")])
+def test_the_last_estimator_preset_laid_on_wins(order: tuple[str, str], mode: str, tmp_path: Path) -> None:
+    """calm after poor_gps is the truth again (it clears the SITL preset), poor_gps after calm is noisy."""
+    s = load_scenario(LOITER, stress=order, stress_dir=STRESS)
+    cfg = load_from_args(build_parser().parse_args(sitl_argv(s, PORTS, params_file=tmp_path / "p.json")[1:]))
+    assert cfg.estimator.mode.value == mode
+    assert (cfg.estimator.preset is None) == (mode == "truth")
 
 
 def test_the_motor_degradation_preset_scripts_its_fault() -> None:

@@ -6,7 +6,8 @@ sent on a GCS (normal profile) and an API (onboard profile) link, hashed. The co
 must give the pure-Python core's output bit for bit; ``test_sitl_compiled_core.py`` runs this
 twice, once with ``SITL_PURE_PYTHON=1``. It drives the vehicle through commands and setpoints as
 clients send them: takeoff, offboard position / velocity / attitude, DO_ORBIT, a mission,
-the sticks, RTL (PX4, noisy estimator); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
+the sticks, RTL (PX4, noisy estimator with a heading error, GPS stuck / intermittent / garbage
+for a few seconds each during the mission); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
 """
 
 from __future__ import annotations
@@ -54,7 +55,11 @@ class HashLink(MavLink):
 
 class Flight:
     def __init__(self, autopilot: str, estimator: str) -> None:
-        cfg = load_sitl_config(None, {"params.file": None, "autopilot": autopilot, "estimator.mode": estimator})
+        overrides: dict[str, object] = {"params.file": None, "autopilot": autopilot, "estimator.mode": estimator}
+        if estimator == "noisy":  # the heading error and GPS failure injection run in the compiled estimator too
+            overrides |= {"estimator.heading_bias_deg": 3.0, "estimator.heading_noise_deg": 1.0,
+                          "params.defaults": {"SYS_FAILURE_EN": 1}}  # fmt: skip
+        cfg = load_sitl_config(None, overrides)
         self.v = Vehicle(cfg, params_for_config(cfg))
         self.gcs, self.api = HashLink("gcs"), HashLink("api")
         links = {"gcs": (self.gcs, StreamProfile.NORMAL), "api": (self.api, StreamProfile.ONBOARD)}
@@ -134,7 +139,12 @@ def fly_px4(f: Flight) -> None:
     f.run(10.0)
     f.mission([(50.0, 0.0), (50.0, 40.0), (0.0, 40.0)], home_item=False)
     f.cmd(M.MAV_CMD_MISSION_START, 0, 0)
-    for _ in range(40):
+    gps = M.FAILURE_UNIT_SENSOR_GPS
+    faults = {10: M.FAILURE_TYPE_STUCK, 14: M.FAILURE_TYPE_OK, 18: M.FAILURE_TYPE_INTERMITTENT,
+              24: M.FAILURE_TYPE_GARBAGE, 26: M.FAILURE_TYPE_OK}  # fmt: skip
+    for k in range(40):
+        if k in faults:  # short GPS failures during the mission (each shorter than EKF2_NOAID_TOUT)
+            f.cmd(M.MAV_CMD_INJECT_FAILURE, gps, faults[k], 0)
         f.heartbeat()
         f.run(1.0)
     for k in range(60):  # POSCTL on the sticks

@@ -42,7 +42,8 @@ def test_failure_injection_is_refused_while_sys_failure_en_is_0() -> None:
     [
         (mavlink.FAILURE_UNIT_SENSOR_GYRO, mavlink.FAILURE_TYPE_OFF, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SENSOR_BARO, mavlink.FAILURE_TYPE_STUCK, 0, mavlink.MAV_RESULT_UNSUPPORTED),
-        (mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_GARBAGE, 0, mavlink.MAV_RESULT_UNSUPPORTED),
+        (mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_SLOW, 0, mavlink.MAV_RESULT_UNSUPPORTED),
+        (mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_WRONG, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, mavlink.FAILURE_TYPE_OFF, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (77, mavlink.FAILURE_TYPE_OFF, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SYSTEM_MOTOR, mavlink.FAILURE_TYPE_OFF, 5, mavlink.MAV_RESULT_DENIED),

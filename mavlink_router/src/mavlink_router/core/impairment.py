@@ -33,6 +33,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from uav_common.validate import require_in_range
+
 __all__ = ["ImpairmentConfig", "ImpairmentCounters", "LinkDirection", "LinkImpairment"]
 
 T = TypeVar("T")
@@ -68,24 +70,22 @@ class ImpairmentConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        checks = (
-            ("loss_pct", self.loss_pct, 0.0, 100.0),
-            ("reorder_pct", self.reorder_pct, 0.0, 100.0),
-            ("delay_ms", self.delay_ms, 0.0, 60_000.0),
-            ("jitter_ms", self.jitter_ms, 0.0, 60_000.0),
-            ("reorder_delay_ms", self.reorder_delay_ms, 0.0, 60_000.0),
-            ("loss_burst", self.loss_burst, 0.0, 1e6),
-        )
-        for name, value, low, high in checks:
-            if not (math.isfinite(value) and low <= value <= high):
-                msg = f"{name} must be from {low:g} to {high:g}, got {value}"
-                raise ValueError(msg)
+        """The one check of a link's values (the scenario layer's ``link`` keys are checked by it too).
+
+        Raises:
+            ValueError: a value out of range (naming it), or a mean burst too short for the loss rate.
+        """
+        require_in_range("loss_pct", self.loss_pct, 0.0, 100.0)
+        require_in_range("reorder_pct", self.reorder_pct, 0.0, 100.0)
+        for name in ("delay_ms", "jitter_ms", "reorder_delay_ms"):
+            require_in_range(name, getattr(self, name), 0.0, 60_000.0)
+        require_in_range("loss_burst", self.loss_burst, 0.0, 1e6)
         if self.loss_burst > 0.0 and 0.0 < self.loss_pct < 100.0:
-            least = self.loss_pct / (100.0 - self.loss_pct)
-            if self.loss_burst < max(1.0, least):
+            least = max(1.0, self.loss_pct / (100.0 - self.loss_pct))
+            if self.loss_burst < least:
                 msg = (
                     f"loss_burst {self.loss_burst:g} is too short for loss_pct {self.loss_pct:g}: a mean burst of "
-                    f"at least {max(1.0, least):.3g} frames is needed (0 = independent losses)"
+                    f"at least {least:.3g} frames is needed (0 = independent losses)"
                 )
                 raise ValueError(msg)
 

@@ -1,11 +1,23 @@
-"""State estimate: the truth, or the truth plus seeded noise, bias and GPS dropouts.
+"""State estimate: the truth, or the truth plus seeded noise, bias, heading error and GPS dropouts.
 
 Noise is first-order Gauss-Markov (exponentially correlated over
 ``noise_correlation_s``), which looks like an EKF's wander rather than white
-jitter; the bias is drawn once per run. During a GPS dropout the horizontal
-error drifts at ``dropout_drift_mps`` in a random direction and ``gps_ok`` is
-false (GPS_RAW_INT reports no fix); afterwards the error converges back.
-All randomness comes from one ``numpy.random.Generator`` seeded from the config.
+jitter; the bias is drawn once per run. The heading (yaw) has its own error, as
+a magnetometer-derived heading is much worse than roll and pitch: a bias drawn
+once per run (compass calibration, declination, nearby metal) plus a slow
+Gauss-Markov wander (``heading_correlation_s``). During a GPS dropout the
+horizontal error drifts at ``dropout_drift_mps`` in a random direction and
+``gps_ok`` is false (GPS_RAW_INT reports no fix); afterwards the error converges
+back. The presets that fill these numbers in (rtk, gps, poor_gps) are in
+:mod:`sitl.config`.
+
+An injected GPS failure (:mod:`sitl.core.faults`) is set by the vehicle in
+:attr:`Estimator.gps_fault` before each update: OFF and GARBAGE dead-reckon,
+STUCK is fused through PX4 EKF2's innovation gate until rejected, INTERMITTENT
+drops the fix in and out. All randomness comes from ``numpy.random.Generator``\\ s
+seeded from the config: the noise of the original model from ``seed`` itself
+(its draws are unchanged by the newer terms), the heading error and the faults
+from independent streams spawned from the same seed.
 """
 
 from __future__ import annotations
@@ -15,11 +27,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.core.faults import NO_AID_TIMEOUT_S
+from sitl.core.faults import (
+    GARBAGE_ALT_RANGE_M,
+    GPS_FUSION_TIME_CONSTANT_S,
+    GPS_POS_GATE_SD,
+    GPS_POS_NOISE_MIN_M,
+    INTERMITTENT_FIX_MEAN_S,
+    INTERMITTENT_GAP_MEAN_S,
+    NO_AID_TIMEOUT_S,
+    FailureType,
+)
 from sitl.core.state import LocalState, VehicleState
 from uav_common.geo import GeoPoint, LocalProjection
 
-__all__ = ["Estimator", "NoiseModel"]
+__all__ = ["RTK_FIXED_MAX_ERROR_M", "Estimator", "GpsReport", "NoiseModel"]
+
+#: GPS_RAW_INT reports an RTK fixed solution when the configured horizontal error (noise and bias) is this small.
+RTK_FIXED_MAX_ERROR_M = 0.05
+#: What the receiver reports without a configured error model (the truth): u-blox-like accuracies.
+_TRUTH_H_ACC_M = 0.5
+_TRUTH_V_ACC_M = 0.8
+
+_OFF = int(FailureType.OFF)
+_STUCK = int(FailureType.STUCK)
+_GARBAGE = int(FailureType.GARBAGE)
+_INTERMITTENT = int(FailureType.INTERMITTENT)
 
 
 @dataclass(frozen=True)
@@ -34,6 +66,29 @@ class NoiseModel:
     gps_dropouts_per_hour: float
     gps_dropout_duration_s: float
     dropout_drift_mps: float
+    heading_bias_rad: float = 0.0
+    heading_noise_rad: float = 0.0
+    heading_correlation_s: float = 60.0
+
+    @property
+    def horizontal_error_m(self) -> float:
+        """The per-axis standard deviation of the horizontal error (wander and bias, outside dropouts)."""
+        return math.hypot(self.horizontal_noise_m, self.horizontal_bias_m)
+
+    @property
+    def vertical_error_m(self) -> float:
+        return math.hypot(self.vertical_noise_m, self.vertical_bias_m)
+
+
+@dataclass(frozen=True, slots=True)
+class GpsReport:
+    """What the receiver reports when it differs from the estimate (an injected STUCK or GARBAGE failure)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    vel_n_mps: float
+    vel_e_mps: float
 
 
 class Estimator:
@@ -45,32 +100,87 @@ class Estimator:
         self.projection = projection
         self.noise = noise
         self._rng = np.random.default_rng(seed)
+        heading_seq, fault_seq = np.random.SeedSequence(seed).spawn(2)
+        self._heading_rng = np.random.default_rng(heading_seq)
+        self._fault_rng = np.random.default_rng(fault_seq)
         self._gm = np.zeros(9)  # correlated noise state: pos(3), vel(3), att(3)
+        self._heading_bias = 0.0
+        self._heading_gm = 0.0
+        self._heading_on = False
         if noise is not None:
             bh = self._rng.normal(0.0, noise.horizontal_bias_m, 2)
             bv = self._rng.normal(0.0, noise.vertical_bias_m)
             self._bias = (float(bh[0]), float(bh[1]), float(bv))
+            self._heading_on = noise.heading_bias_rad > 0.0 or noise.heading_noise_rad > 0.0
+            if self._heading_on:
+                self._heading_bias = float(self._heading_rng.normal(0.0, noise.heading_bias_rad))
+                self._heading_gm = float(self._heading_rng.normal(0.0, noise.heading_noise_rad))
+            self.h_acc_m = max(0.01, noise.horizontal_error_m)
+            self.v_acc_m = max(0.01, noise.vertical_error_m)
         else:
             self._bias = (0.0, 0.0, 0.0)
+            self.h_acc_m = _TRUTH_H_ACC_M
+            self.v_acc_m = _TRUTH_V_ACC_M
+        #: GPS_RAW_INT's fix type while the receiver has a fix: 6 (RTK fixed) for an RTK-grade model, else 3 (3D).
+        self.fix_type = 6 if noise is not None and noise.horizontal_error_m <= RTK_FIXED_MAX_ERROR_M else 3
+        #: EKF2's GPS position innovation gate (EKF2_GPS_P_GATE standard deviations of the reported accuracy).
+        self.gate_m = GPS_POS_GATE_SD * max(GPS_POS_NOISE_MIN_M, self.h_acc_m)
         self._dropout_until = -1.0
         self._drift = (0.0, 0.0)
         self._drift_error = [0.0, 0.0]
         self._last_t: float | None = None
         self.dropouts = 0
-        #: An injected GPS failure (MAV_CMD_INJECT_FAILURE): set by the vehicle before each update.
-        self.gps_failed = False
+        #: An injected GPS failure (a MAVLink FAILURE_TYPE value, 0 = none): set by the vehicle before each update.
+        self.gps_fault = 0
+        #: What the receiver reports when it is not the estimate (STUCK, GARBAGE); None otherwise.
+        self.gps_report: GpsReport | None = None
+        #: STUCK: samples of the frozen fix the innovation gate rejected so far.
+        self.rejected_samples = 0
+        #: INTERMITTENT: fix gaps so far.
+        self.gaps = 0
+        self._fault_seen = 0
         self._gps_failed_since: float | None = None
         self._dead_reckoned: tuple[float, float] | None = None
+        self._stuck_fix: tuple[float, float] | None = None
+        self._stuck_pos = (0.0, 0.0)
+        self._stuck_fused_t = 0.0
+        self._in_gap = False
+        self._phase_until = 0.0
 
     @property
     def gps_ok(self) -> bool:
-        if self.gps_failed:
+        fault = self.gps_fault
+        if fault in (_OFF, _GARBAGE) or (fault == _INTERMITTENT and self._in_gap):
             return False
         return self._last_t is None or self._last_t >= self._dropout_until
 
+    @property
+    def heading_error_rad(self) -> float:
+        """The present heading error beyond the attitude noise: the per-run bias plus the wander."""
+        return self._heading_bias + self._heading_gm if self._heading_on else 0.0
+
+    def _moved(self, est: LocalState, pos: tuple[float, float, float], gps_ok: bool, valid: bool) -> LocalState:
+        """``est`` at another LOCAL_NED position (its geodetic position follows)."""
+        s = est.full
+        geo = self.projection.to_geo(*pos)
+        full = VehicleState(
+            s.t_s,
+            geo.lat_deg,
+            geo.lon_deg,
+            geo.alt_amsl_m,
+            s.vel_ned_mps,
+            s.q_wxyz,
+            s.euler_rad,
+            s.rates_frd_radps,
+            s.specific_force_frd_mps2,
+            s.height_above_ground_m,
+            s.gravity_mps2,
+        )
+        return LocalState(full, pos, gps_ok, valid)
+
     def _without_gps(self, t_s: float, est: LocalState, dt: float) -> LocalState:
-        """An injected GPS failure: no fix; the horizontal position is dead-reckoned on the velocity
-        estimate from where the last fix left it, and invalid after :data:`NO_AID_TIMEOUT_S` (PX4's EKF2)."""
+        """No usable fix: the horizontal position is dead-reckoned on the velocity estimate from where the last
+        fix left it, and invalid after :data:`NO_AID_TIMEOUT_S` (PX4's EKF2_NOAID_TOUT)."""
         if self._gps_failed_since is None or self._dead_reckoned is None:
             self._gps_failed_since = t_s
             self._dead_reckoned = (est.pos_ned_m[0], est.pos_ned_m[1])
@@ -79,7 +189,79 @@ class Estimator:
             self._dead_reckoned = (self._dead_reckoned[0] + vn * dt, self._dead_reckoned[1] + ve * dt)
         pos = (self._dead_reckoned[0], self._dead_reckoned[1], est.pos_ned_m[2])
         valid = t_s - self._gps_failed_since < NO_AID_TIMEOUT_S
-        return LocalState(est.full, pos, False, valid)
+        if pos == est.pos_ned_m:
+            return LocalState(est.full, pos, False, valid)
+        return self._moved(est, pos, False, valid)
+
+    def _stuck(self, t_s: float, est: LocalState, dt: float) -> LocalState:
+        """The receiver repeats its last fix: EKF2 fuses it while the innovation passes the gate, so the estimate
+        is pulled to the frozen position; once the vehicle has moved away far enough the fix is rejected, the
+        estimate dead-reckons, and it is invalid :data:`NO_AID_TIMEOUT_S` after the last accepted sample."""
+        vn, ve, _ = est.vel_ned_mps
+        if self._stuck_fix is None:
+            s = est.full
+            self._stuck_fix = (est.pos_ned_m[0], est.pos_ned_m[1])
+            self._stuck_pos = self._stuck_fix
+            self._stuck_fused_t = t_s
+            self.gps_report = GpsReport(s.lat_deg, s.lon_deg, s.alt_amsl_m, vn, ve)
+            accepted = True
+        else:
+            pn = self._stuck_pos[0] + vn * dt
+            pe = self._stuck_pos[1] + ve * dt
+            inn_n = self._stuck_fix[0] - pn
+            inn_e = self._stuck_fix[1] - pe
+            accepted = math.hypot(inn_n, inn_e) <= self.gate_m
+            if accepted:
+                k = min(1.0, dt / GPS_FUSION_TIME_CONSTANT_S)
+                pn += k * inn_n
+                pe += k * inn_e
+                self._stuck_fused_t = t_s
+            else:
+                self.rejected_samples += 1
+            self._stuck_pos = (pn, pe)
+        valid = t_s - self._stuck_fused_t < NO_AID_TIMEOUT_S
+        return self._moved(est, (self._stuck_pos[0], self._stuck_pos[1], est.pos_ned_m[2]), accepted, valid)
+
+    def _with_fault(self, t_s: float, est: LocalState, dt: float) -> LocalState:
+        fault = self.gps_fault
+        if fault != self._fault_seen:  # a new fault: start it from the present estimate
+            self._fault_seen = fault
+            self._gps_failed_since = None
+            self._stuck_fix = None
+            self.gps_report = None
+            self._in_gap = False
+            self._phase_until = t_s
+        if fault == _STUCK:
+            return self._stuck(t_s, est, dt)
+        if fault == _GARBAGE:
+            r = self._fault_rng
+            self.gps_report = GpsReport(
+                float(r.uniform(-89.0, 89.0)),
+                float(r.uniform(-180.0, 180.0)),
+                float(r.uniform(GARBAGE_ALT_RANGE_M[0], GARBAGE_ALT_RANGE_M[1])),
+                float(r.uniform(-50.0, 50.0)),
+                float(r.uniform(-50.0, 50.0)),
+            )
+            return self._without_gps(t_s, est, dt)
+        if fault == _INTERMITTENT:
+            if t_s >= self._phase_until:
+                self._in_gap = not self._in_gap
+                mean = INTERMITTENT_GAP_MEAN_S if self._in_gap else INTERMITTENT_FIX_MEAN_S
+                self._phase_until = t_s + float(self._fault_rng.exponential(mean))
+                if self._in_gap:
+                    self.gaps += 1
+            if self._in_gap:
+                return self._without_gps(t_s, est, dt)
+            self._gps_failed_since = None
+            return est
+        return self._without_gps(t_s, est, dt)  # OFF
+
+    def _no_fault(self) -> None:
+        self._gps_failed_since = None
+        if self._fault_seen:
+            self._fault_seen = 0
+            self.gps_report = None
+            self._in_gap = False
 
     def update(self, truth: VehicleState, truth_ned_m: tuple[float, float, float] | None = None) -> LocalState:
         """The estimate for ``truth``; ``truth_ned_m`` is its LOCAL_NED position if already known."""
@@ -89,9 +271,9 @@ class Estimator:
         dt = 0.0 if self._last_t is None else max(0.0, truth.t_s - self._last_t)
         if self.noise is None:
             self._last_t = truth.t_s
-            if self.gps_failed:
-                return self._without_gps(truth.t_s, LocalState(truth, (n, e, d), False), dt)
-            self._gps_failed_since = None
+            if self.gps_fault:
+                return self._with_fault(truth.t_s, LocalState(truth, (n, e, d), True), dt)
+            self._no_fault()
             return LocalState(truth, (n, e, d), True)
         self._last_t = truth.t_s
         nm = self.noise
@@ -107,6 +289,9 @@ class Estimator:
         vel = (v[0] + gm[3], v[1] + gm[4], v[2] + gm[5])
         roll, pitch, yaw = truth.euler_rad
         roll, pitch, yaw = roll + gm[6], pitch + gm[7], yaw + gm[8]
+        if self._heading_on:
+            self._step_heading(dt, nm)
+            yaw += self._heading_bias + self._heading_gm
         q = _quat_from_euler(roll, pitch, yaw)
         geo = self.projection.to_geo(*pos)
         est = VehicleState(
@@ -122,9 +307,10 @@ class Estimator:
             height_above_ground_m=truth.height_above_ground_m,
             gravity_mps2=truth.gravity_mps2,
         )
-        if self.gps_failed:
-            return self._without_gps(truth.t_s, LocalState(est, pos, False), dt)
-        self._gps_failed_since = None
+        if self.gps_fault:
+            # a fault replaces the receiver: a dropout of the noise model does not add to it
+            return self._with_fault(truth.t_s, LocalState(est, pos, True), dt)
+        self._no_fault()
         return LocalState(est, pos, self.gps_ok)
 
     def _step_noise(self, dt: float, nm: NoiseModel) -> None:
@@ -139,6 +325,13 @@ class Estimator:
             + [nm.attitude_noise_rad] * 3
         )
         self._gm = a * self._gm + b * sigma * self._rng.standard_normal(9)
+
+    def _step_heading(self, dt: float, nm: NoiseModel) -> None:
+        if dt <= 0.0:
+            return
+        a = math.exp(-dt / nm.heading_correlation_s)
+        b = math.sqrt(max(0.0, 1.0 - a * a))
+        self._heading_gm = a * self._heading_gm + b * nm.heading_noise_rad * float(self._heading_rng.standard_normal())
 
     def _step_dropout(self, t_s: float, dt: float, nm: NoiseModel) -> None:
         if t_s < self._dropout_until:

@@ -8,14 +8,35 @@ how the vehicle reacts (as PX4 would):
   :data:`NO_AID_TIMEOUT_S` (PX4's ``EKF2_NOAID_TOUT``), then the local position is invalid: the
   position-estimate failsafe descends without position control (PX4's Descend, reported as AUTO.LAND),
   position modes are refused, LOCAL_POSITION_NED, GLOBAL_POSITION_INT and ODOMETRY stop.
+* ``SENSOR_GPS`` ``STUCK``: the receiver repeats its last fix (position and velocity; PX4's GPS failure
+  injector re-publishes its last sample). EKF2 fuses it while its innovation passes the gate
+  (:data:`GPS_POS_GATE_SD` standard deviations of the reported accuracy, at least
+  :data:`GPS_POS_NOISE_MIN_M`: ``EKF2_GPS_P_GATE``, ``EKF2_GPS_P_NOISE``), so the estimate is held near
+  the frozen position (over :data:`GPS_FUSION_TIME_CONSTANT_S`) and a hovering vehicle notices nothing; a
+  vehicle told to move accelerates with its estimate lagging until the innovation leaves the gate, then
+  the fix is rejected, the estimate dead-reckons and, :data:`NO_AID_TIMEOUT_S` after the last accepted
+  sample, the position is invalid and the failsafe descends as for OFF. GPS_RAW_INT repeats the frozen
+  fix (3D); SYS_STATUS reports the GPS unhealthy while its samples are rejected.
+* ``SENSOR_GPS`` ``GARBAGE``: the receiver reports random positions anywhere on Earth (GPS_RAW_INT shows
+  them, with a 3D fix); every sample fails the innovation gate at once, so the estimate behaves as for OFF
+  (dead reckoning, invalid after :data:`NO_AID_TIMEOUT_S`, the failsafe descends); SYS_STATUS: GPS unhealthy.
+* ``SENSOR_GPS`` ``INTERMITTENT``: the fix drops out and comes back, seeded (``estimator.seed``): fixes
+  last :data:`INTERMITTENT_FIX_MEAN_S`, gaps :data:`INTERMITTENT_GAP_MEAN_S` on average (exponential).
+  Each gap dead-reckons as OFF does; a gap shorter than :data:`NO_AID_TIMEOUT_S` keeps the position
+  valid and the vehicle flies on, a longer one makes it invalid and the failsafe descends.
 * ``SYSTEM_BATTERY`` ``OFF``: the battery reads empty (PX4's battery simulator ``force empty``): the
   battery failsafes act (critical: land).
 * ``SYSTEM_MOTOR`` ``OFF``: that motor (1..4, PX4 quad-X order; 0 = all) stops; ``WRONG``: it delivers
   :data:`MOTOR_WRONG_FACTOR` of the commanded ESC duty (a damaged propeller or a failing ESC).
-* ``OK`` on any of these units clears it.
+* ``OK`` on any of these units clears it; a new GPS type replaces the one in force.
 
-Every other unit/type pair (gyro, accel, mag, baro, airspeed, optical flow, RC and MAVLink signal, stuck,
-garbage, slow, delayed, intermittent...) is answered ``UNSUPPORTED``: not modelled.
+PX4 itself (its GPS failure injector, 2025) knows GPS OFF, STUCK and WRONG; GARBAGE and INTERMITTENT are
+this SITL's, with the reaction PX4's EKF2 has to such data. Not modelled of EKF2: after 7 s of rejected
+samples it resets its position to the GPS (to the frozen fix for STUCK) and fuses again; here the estimate
+stays invalid until the fault is cleared.
+
+Every other unit/type pair (gyro, accel, mag, baro, airspeed, optical flow, RC and MAVLink signal, GPS
+wrong, slow or delayed...) is answered ``UNSUPPORTED``: not modelled.
 """
 
 from __future__ import annotations
@@ -24,6 +45,12 @@ import enum
 from dataclasses import dataclass
 
 __all__ = [
+    "GARBAGE_ALT_RANGE_M",
+    "GPS_FUSION_TIME_CONSTANT_S",
+    "GPS_POS_GATE_SD",
+    "GPS_POS_NOISE_MIN_M",
+    "INTERMITTENT_FIX_MEAN_S",
+    "INTERMITTENT_GAP_MEAN_S",
     "MOTOR_COUNT",
     "MOTOR_WRONG_FACTOR",
     "NO_AID_TIMEOUT_S",
@@ -35,6 +62,17 @@ __all__ = [
 
 #: PX4's EKF2_NOAID_TOUT: without GPS the horizontal position is dead-reckoned this long, then invalid.
 NO_AID_TIMEOUT_S = 5.0
+#: PX4's EKF2_GPS_P_GATE: a GPS position sample whose innovation exceeds this many standard deviations is rejected.
+GPS_POS_GATE_SD = 5.0
+#: PX4's EKF2_GPS_P_NOISE: the floor of the GPS position noise the gate is scaled by (m).
+GPS_POS_NOISE_MIN_M = 0.5
+#: How fast an accepted (stuck) fix pulls the estimate to itself: about EKF2's settling on a 5 Hz GPS.
+GPS_FUSION_TIME_CONSTANT_S = 1.0
+#: INTERMITTENT: mean length of a fix and of a gap (exponentially distributed, seeded).
+INTERMITTENT_FIX_MEAN_S = 3.0
+INTERMITTENT_GAP_MEAN_S = 1.0
+#: GARBAGE: the range of the random altitudes reported (m AMSL).
+GARBAGE_ALT_RANGE_M = (-1000.0, 10000.0)
 #: A motor with a WRONG failure delivers this fraction of its commanded ESC duty.
 MOTOR_WRONG_FACTOR = 0.7
 MOTOR_COUNT = 4
@@ -75,7 +113,9 @@ class FailureType(enum.IntEnum):
 
 #: The unit/type pairs this SITL models (OK clears any of them).
 MODELLED: dict[FailureUnit, frozenset[FailureType]] = {
-    FailureUnit.SENSOR_GPS: frozenset({FailureType.OK, FailureType.OFF}),
+    FailureUnit.SENSOR_GPS: frozenset(
+        {FailureType.OK, FailureType.OFF, FailureType.STUCK, FailureType.GARBAGE, FailureType.INTERMITTENT}
+    ),
     FailureUnit.SYSTEM_BATTERY: frozenset({FailureType.OK, FailureType.OFF}),
     FailureUnit.SYSTEM_MOTOR: frozenset({FailureType.OK, FailureType.OFF, FailureType.WRONG}),
 }
@@ -97,10 +137,15 @@ class FaultState:
     """The failures in force; the physics, the estimator and the autopilot read it."""
 
     def __init__(self) -> None:
-        self.gps_off = False
+        #: The GPS failure in force (OK: none).
+        self.gps = FailureType.OK
         self.battery_off = False
         self.motor_factors: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
         self.injected = 0
+
+    @property
+    def gps_off(self) -> bool:
+        return self.gps is FailureType.OFF
 
     @property
     def motors_degraded(self) -> bool:
@@ -108,13 +153,13 @@ class FaultState:
 
     @property
     def any(self) -> bool:
-        return self.gps_off or self.battery_off or self.motors_degraded
+        return self.gps is not FailureType.OK or self.battery_off or self.motors_degraded
 
     def describe(self) -> list[str]:
-        """The failures in force, e.g. ``["gps off", "motor 1 wrong (0.7)"]``."""
+        """The failures in force, e.g. ``["gps stuck", "motor 1 wrong (0.7)"]``."""
         out = []
-        if self.gps_off:
-            out.append("gps off")
+        if self.gps is not FailureType.OK:
+            out.append(f"gps {self.gps.name.lower()}")
         if self.battery_off:
             out.append("battery off")
         for i, f in enumerate(self.motor_factors):
@@ -150,7 +195,7 @@ class FaultState:
             self.motor_factors = (factors[0], factors[1], factors[2], factors[3])
             what = f"motor {instance or 'all'} {t.name.lower()}"
         elif u is FailureUnit.SENSOR_GPS:
-            self.gps_off = t is FailureType.OFF
+            self.gps = t
         else:
             self.battery_off = t is FailureType.OFF
         self.injected += 1

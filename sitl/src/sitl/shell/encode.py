@@ -284,25 +284,33 @@ class Encoder:
 
     def gps_raw_int(self) -> Any:
         e = self.v.est
-        s = e.full
-        vn, ve, _ = e.vel_ned_mps
-        ok = e.gps_ok
+        est = self.v.estimator
+        r = est.gps_report  # the receiver's own (wrong) fix under a STUCK or GARBAGE failure
+        if r is not None:
+            lat, lon, alt = r.lat_deg, r.lon_deg, r.alt_amsl_m
+            vn, ve = r.vel_n_mps, r.vel_e_mps
+            ok = True
+        else:
+            s = e.full
+            lat, lon, alt = s.lat_deg, s.lon_deg, s.alt_amsl_m
+            vn, ve, _ = e.vel_ned_mps
+            ok = e.gps_ok
         speed = math.hypot(vn, ve)
         cog = _cdeg(math.atan2(ve, vn)) if speed > 0.2 else UINT16_MAX
         return self.fast.gps_raw_int(
             self.time_usec,
-            mavlink.GPS_FIX_TYPE_3D_FIX if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
-            round(s.lat_deg * 1e7),
-            round(s.lon_deg * 1e7),
-            round(s.alt_amsl_m * 1000.0),
+            est.fix_type if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            round(alt * 1000.0),
             80 if ok else UINT16_MAX,
             120 if ok else UINT16_MAX,
             _clamp_int(speed * 100.0, 0, UINT16_MAX - 1),
             cog,
             12 if ok else 0,
-            round(s.alt_amsl_m * 1000.0),
-            500 if ok else 0,
-            800 if ok else 0,
+            round(alt * 1000.0),
+            _clamp_int(est.h_acc_m * 1000.0, 0, 2**31 - 1) if ok else 0,
+            _clamp_int(est.v_acc_m * 1000.0, 0, 2**31 - 1) if ok else 0,
             100 if ok else 0,
             0,
             0,

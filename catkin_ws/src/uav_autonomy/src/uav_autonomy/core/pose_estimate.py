@@ -49,9 +49,11 @@ __all__ = [
     "EstimateState",
     "EstimateWatchdog",
     "PoseEstimate",
+    "PositionTarget",
     "TimeSync",
     "estimate_from_local_position",
     "estimate_from_odometry",
+    "target_from_position_target",
 ]
 
 Vec3 = tuple[float, float, float]
@@ -322,6 +324,30 @@ def estimate_from_local_position(
         covariance_from_autopilot=False,
         source=SOURCE_LOCAL_POSITION,
     )
+
+
+#: POSITION_TARGET_LOCAL_NED type_mask bits that say "ignore x / y / z".
+_IGNORE_POSITION_BITS = (1, 2, 4)
+
+
+@dataclass(frozen=True)
+class PositionTarget:
+    """The autopilot's own position target (POSITION_TARGET_LOCAL_NED, #85) in the map frame (ENU)."""
+
+    t_autopilot_s: float
+    position_enu_m: Vec3
+
+
+def target_from_position_target(
+    time_boot_ms: int, type_mask: int, position_ned_m: Sequence[float]
+) -> PositionTarget | None:
+    """POSITION_TARGET_LOCAL_NED as a :class:`PositionTarget`; ``None`` when it holds no position target (the
+    mask ignores x, y or z, e.g. on the ground or in a velocity-only mode) or a non-finite one."""
+    if any(type_mask & bit for bit in _IGNORE_POSITION_BITS):
+        return None
+    if not all(math.isfinite(float(v)) for v in position_ned_m):
+        return None
+    return PositionTarget(time_boot_ms * 1e-3, _vec3(ned_to_enu(position_ned_m)))
 
 
 def relative_yaw_rad(q_a_wxyz: Sequence[float], q_b_wxyz: Sequence[float]) -> float:

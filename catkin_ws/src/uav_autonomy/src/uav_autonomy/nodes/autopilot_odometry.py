@@ -12,13 +12,17 @@ Publishes:
     samples sorted, the odometry topic does not go back in time); ``/tf_static``: ``map -> odom`` (identity: the
     autopilot's local frame is anchored at home by its GNSS fusion, so ``map`` and ``odom`` coincide; a
     SLAM or VIO front end would publish the correction here).
+    ``~target`` (geometry_msgs/PointStamped, frame ``map``): the autopilot's own position target
+    (POSITION_TARGET_LOCAL_NED: the hold point in HOLD, the streamed setpoint in OFFBOARD), stamped like
+    the odometry; the scorer's ``autopilot_tracking`` measures the vehicle against it. Only finite targets.
     ``~status`` (uav_msgs/EstimateStatus) at ``status_rate_hz`` and on every change of state: OK, WAITING,
     STALE (no fresh estimate for ``stale_timeout_s``) or INVALID (NaN/inf or failed), with the reason, the
     time mapping in force and counters. Changes of state are also logged (warnings for STALE/INVALID).
 MAVLink (``connection_url``; sysid/compid 1/192, heartbeat 1 Hz as an onboard component):
     reads ODOMETRY where the autopilot sends it (``source: auto``), else LOCAL_POSITION_NED with the latest
-    ATTITUDE_QUATERNION; TIMESYNC answers; HEARTBEAT. Sends TIMESYNC requests at ``timesync_rate_hz`` and
-    asks for ODOMETRY at ``odometry_rate_hz`` (MAV_CMD_SET_MESSAGE_INTERVAL, repeated until acknowledged).
+    ATTITUDE_QUATERNION; POSITION_TARGET_LOCAL_NED; TIMESYNC answers; HEARTBEAT. Sends TIMESYNC requests at
+    ``timesync_rate_hz`` and asks for ODOMETRY at ``odometry_rate_hz`` (MAV_CMD_SET_MESSAGE_INTERVAL,
+    repeated until acknowledged).
 Parameters:
     ``~config`` (str, default: the project's ``config/autonomy.yaml``), section ``autopilot_odometry``;
     ``~overrides`` (dict); ``~connection_url`` (str, optional, wins); ``~odom_topic`` (str).
@@ -41,7 +45,7 @@ import time
 
 import rospy
 import tf2_ros
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import PointStamped, TransformStamped
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Header
 
@@ -53,11 +57,12 @@ from uav_autonomy.core.pose_estimate import (
     TimeSync,
     estimate_from_local_position,
     estimate_from_odometry,
+    target_from_position_target,
 )
 from uav_autonomy.errors import InvalidInputError, UavAutonomyError
 from uav_autonomy.mavlink.link import MavlinkLink
 from uav_autonomy.ros.conversions import odometry_msg
-from uav_autonomy.ros.params import AutopilotOdometryParams, autonomy_section
+from uav_autonomy.ros.params import AutopilotOdometryParams, mavlink_node_section
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import EstimateStatus
@@ -110,6 +115,7 @@ class AutopilotOdometryNode:
         cfg = self.cfg
         self.pub_odom = rospy.Publisher(self.odom_topic, Odometry, queue_size=50)
         self.pub_status = rospy.Publisher("~status", EstimateStatus, queue_size=10, latch=True)
+        self.pub_target = rospy.Publisher("~target", PointStamped, queue_size=20)
         self.tf = tf2_ros.TransformBroadcaster()
         self.tf_static = tf2_ros.StaticTransformBroadcaster()
         identity = TransformStamped()
@@ -175,6 +181,8 @@ class AutopilotOdometryNode:
             self._attitude = (q, rates)
         elif mtype in ("ODOMETRY", "LOCAL_POSITION_NED"):
             self._pending.append(msg)
+        elif mtype == "POSITION_TARGET_LOCAL_NED":
+            self._on_position_target(msg, now)
 
     def _estimate_pending(self, now: float, wall: float | None) -> None:
         """The estimates this wake-up read (the socket is drained), in order, shedding a backlog (module doc)."""
@@ -237,6 +245,22 @@ class AutopilotOdometryNode:
             self.watchdog.invalid(str(err))
             return
         self._publish(est, now, wall)
+
+    def _on_position_target(self, m: object, now: float) -> None:
+        target = target_from_position_target(
+            int(m.time_boot_ms),  # type: ignore[attr-defined]
+            int(m.type_mask),  # type: ignore[attr-defined]
+            (m.x, m.y, m.z),  # type: ignore[attr-defined]
+        )
+        if target is None:
+            return
+        t = target.t_autopilot_s
+        stamp = t if self.cfg.time_sync == "shared" else self.sync.to_local(t)
+        if not math.isfinite(stamp):
+            return
+        msg = PointStamped(header=Header(stamp=rospy.Time.from_sec(stamp), frame_id=self.cfg.map_frame))
+        msg.point.x, msg.point.y, msg.point.z = target.position_enu_m
+        self.pub_target.publish(msg)
 
     # ------------------------------------------------------------------ output
     def _publish(self, est: PoseEstimate, now: float, wall: float | None) -> None:
@@ -303,7 +327,8 @@ class AutopilotOdometryNode:
         if state in (EstimateState.STALE, EstimateState.INVALID):
             rospy.logwarn(text + " (the autonomy must not fly on it)")
         else:
-            rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time by {self.sync.method})"))
+            timing = "the autopilot's clock (shared)" if self.cfg.time_sync == "shared" else f"by {self.sync.method}"
+            rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time {timing})"))
 
 
 def _stamp_s(msg: object) -> float:
@@ -319,10 +344,7 @@ def main() -> None:
 
 def _run() -> None:
     params = node_params(AutopilotOdometryParams, "autopilot_odometry")
-    overrides = dict(params.overrides)
-    if params.connection_url:
-        overrides["connection_url"] = params.connection_url
-    config = autonomy_section(AutopilotOdometryConfig, "autopilot_odometry", params.config, overrides)
+    config = mavlink_node_section(AutopilotOdometryConfig, "autopilot_odometry", params)
     node = AutopilotOdometryNode(config, params.odom_topic)
     node.start()
     rospy.on_shutdown(node.shutdown)

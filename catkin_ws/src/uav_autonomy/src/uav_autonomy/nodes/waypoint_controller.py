@@ -66,7 +66,7 @@ from uav_autonomy.ros.conversions import (
     points_from_msgs,
     yaw_from_quaternion,
 )
-from uav_autonomy.ros.params import ControllerParams, autonomy_section
+from uav_autonomy.ros.params import ControllerParams, mavlink_node_section
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import ControllerState as ControllerStateMsg
@@ -259,10 +259,7 @@ def main() -> None:
 
 def _run() -> None:
     params = node_params(ControllerParams, "waypoint_controller")
-    overrides = dict(params.overrides)
-    if params.connection_url:
-        overrides["connection_url"] = params.connection_url
-    config = autonomy_section(ControllerConfig, "controller", params.config, overrides)
+    config = mavlink_node_section(ControllerConfig, "controller", params)
     node = WaypointControllerNode(config, params.pose_topic)
     node.start()
     rospy.on_shutdown(node.shutdown)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from uav_autonomy.errors import AutonomyConfigError
 from uav_common.config import config_errors_as
@@ -27,6 +27,7 @@ __all__ = [
     "PlannerParams",
     "RobotDescriptionParams",
     "autonomy_section",
+    "mavlink_node_section",
 ]
 
 T = TypeVar("T")
@@ -45,6 +46,24 @@ def autonomy_section(cls: type[T], section: str, config: str, overrides: Mapping
     with config_errors_as(AutonomyConfigError):
         path = Path(config).expanduser() if config else config_file("autonomy.yaml")
         return load_section(cls, path, section, overrides)
+
+
+class _MavlinkNodeParams(Protocol):
+    @property
+    def config(self) -> str: ...
+    @property
+    def overrides(self) -> dict[str, Any]: ...
+    @property
+    def connection_url(self) -> str: ...
+
+
+def mavlink_node_section(cls: type[T], section: str, params: _MavlinkNodeParams) -> T:
+    """:func:`autonomy_section` for a node that talks MAVLink: its ``~connection_url``, when set, wins over the
+    section's (and over ``~overrides``)."""
+    overrides = dict(params.overrides)
+    if params.connection_url:
+        overrides["connection_url"] = params.connection_url
+    return autonomy_section(cls, section, params.config, overrides)
 
 
 @dataclass(frozen=True)

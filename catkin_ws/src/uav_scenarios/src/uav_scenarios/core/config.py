@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from mavlink_router.core.impairment import ImpairmentConfig
 from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.validate import require_in_range
 from uav_scenarios.core.faults import camera_name, not_simulated
@@ -127,6 +128,8 @@ class PoseSource(enum.Enum):
 POSE_TOPICS = {PoseSource.GROUND_TRUTH: "/uav/ground_truth/odom", PoseSource.AUTOPILOT: "/uav/autopilot/odom"}
 #: The autopilot_odometry node's status topic.
 ESTIMATE_STATUS_TOPIC = "/autopilot_odometry/status"
+#: The autopilot's own position target (autopilot_odometry), for the scorer's ``autopilot_tracking``.
+TARGET_TOPIC = "/autopilot_odometry/target"
 
 
 def _check_polygon(name: str, polygon: tuple[Point2, ...]) -> None:
@@ -396,18 +399,15 @@ class LinkImpairmentSpec:
     direction: Literal["both", "in", "out"] = "both"
 
     def __post_init__(self) -> None:
-        require_in_range("loss_pct", self.loss_pct, 0.0, 100.0)
-        require_in_range("reorder_pct", self.reorder_pct, 0.0, 100.0)
-        for name in ("delay_ms", "jitter_ms", "reorder_delay_ms"):
-            require_in_range(name, getattr(self, name), 0.0, 60_000.0)
-        require_in_range("loss_burst", self.loss_burst, 0.0, 1e6)
-        if self.loss_burst > 0.0 and 0.0 < self.loss_pct < 100.0:
-            least = max(1.0, self.loss_pct / (100.0 - self.loss_pct))
-            if self.loss_burst < least:
-                msg = (
-                    f"loss_burst must be 0 (independent losses) or >= {least:.3g} frames for loss_pct {self.loss_pct:g}"
-                )
-                raise ValueError(msg)
+        # the router's own check, once (its message names the key; the loader adds the path)
+        ImpairmentConfig(
+            loss_pct=self.loss_pct,
+            loss_burst=self.loss_burst,
+            delay_ms=self.delay_ms,
+            jitter_ms=self.jitter_ms,
+            reorder_pct=self.reorder_pct,
+            reorder_delay_ms=self.reorder_delay_ms,
+        )
 
 
 @dataclass(frozen=True)
@@ -775,7 +775,7 @@ def played_topics(scenario: Scenario) -> tuple[str, ...]:
     scorer regenerate everything else)."""
     topics = list(REPLAYED_TOPICS) + list(RECORDING_PRESETS["replay"]) + list(replay_inputs(scenario))
     if scenario.pose_source is PoseSource.AUTOPILOT:
-        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC, TARGET_TOPIC]
     return tuple(topics)
 
 
@@ -784,7 +784,7 @@ def recorded_topics(scenario: Scenario) -> tuple[str, ...]:
     spec = scenario.recording
     topics = list(RECORDING_PRESETS["report"])
     if scenario.pose_source is PoseSource.AUTOPILOT:
-        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC]
+        topics += [estimate_topic(scenario), ESTIMATE_STATUS_TOPIC, TARGET_TOPIC]
     if scenario.perception.boxes_topic not in topics:
         topics.append(scenario.perception.boxes_topic)  # the detector's own output, as it came
     if spec.preset == "replay":

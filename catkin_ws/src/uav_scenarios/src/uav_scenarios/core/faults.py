@@ -43,7 +43,7 @@ FAILURE_TYPE_CODES: dict[str, int] = {
 }  # fmt: skip
 #: What the SITL simulates (docs/sitl.md "Failure injection"); ``ok`` clears any of them.
 SIMULATED: dict[str, frozenset[str]] = {
-    "gps": frozenset({"off"}),
+    "gps": frozenset({"off", "stuck", "garbage", "intermittent"}),
     "battery": frozenset({"off"}),
     "motor": frozenset({"off", "wrong"}),
 }

@@ -139,8 +139,9 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
 
 
 #: What the autopilot odometry node reads (the router sends it nothing else: no decoding work for it):
-#: HEARTBEAT, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, COMMAND_ACK, TIMESYNC, STATUSTEXT, ODOMETRY.
-ODOMETRY_MESSAGES = (0, 31, 32, 77, 111, 253, 331)
+#: HEARTBEAT, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, COMMAND_ACK, POSITION_TARGET_LOCAL_NED, TIMESYNC,
+#: STATUSTEXT, ODOMETRY.
+ODOMETRY_MESSAGES = (0, 31, 32, 77, 85, 111, 253, 331)
 
 
 def link_lines(spec: LinkImpairmentSpec, seed: int) -> list[str]:

@@ -15,7 +15,8 @@ Subscribes:
     ``/scenario/status`` (uav_msgs/ScenarioStatus: run start, completion, stop);
     with ``pose_source: autopilot``: ``/uav/autopilot/odom`` (nav_msgs/Odometry, the estimate the autonomy flew
     on: its error against the ground truth) and ``/autopilot_odometry/status`` (uav_msgs/EstimateStatus:
-    its changes of state, e.g. STALE with the reason, are events);
+    its changes of state, e.g. STALE with the reason, are events) and ``/autopilot_odometry/target``
+    (geometry_msgs/PointStamped: the autopilot's own position target, for ``autopilot_tracking``);
     camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times, and the
     detector camera's color images when the detector is not the ground truth (``scoring.gallery_size`` > 0:
     the gallery of its worst mistakes is cut from them); the color images of each camera the scenario scripts
@@ -63,6 +64,7 @@ from typing import Any
 
 import numpy as np
 import rospy
+from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rosgraph_msgs.msg import Clock
@@ -95,6 +97,7 @@ from uav_msgs.srv import ExportVoxels
 from uav_scenarios.core.config import (
     ESTIMATE_STATUS_TOPIC,
     GEOLOCATED_TOPIC,
+    TARGET_TOPIC,
     DetectorKind,
     PoseSource,
     Scenario,
@@ -126,6 +129,7 @@ from uav_scenarios.ros.records import (
     path_from_msg,
     pose_from_odometry,
     stamp_s,
+    target_from_msg,
     tracks_from_msg,
 )
 from uav_scenarios.shell.versions import run_versions
@@ -250,6 +254,7 @@ class ScorerNode:
             sub(topic, Odometry, self._feed(pose_from_odometry, "add_estimate"), queue_size=QUEUE)
             status = self._feed(estimate_status_from_msg, "add_estimate_status")
             sub(ESTIMATE_STATUS_TOPIC, EstimateStatus, status, queue_size=QUEUE)
+            sub(TARGET_TOPIC, PointStamped, self._feed(target_from_msg, "add_target"), queue_size=QUEUE)
         sub("/uav/battery", BatteryState, self._feed(battery_from_msg, "add_battery"), queue_size=QUEUE)
         # numpy_msg: the float32[] of big grids deserialises into an array, not a Python tuple.
         sub("/map_server/layers", numpy_msg(GridLayers), self.on_layers, queue_size=2, buff_size=2**26)

@@ -31,6 +31,7 @@ from uav_scenarios.core.scoring.types import (
     GridSnapshot,
     PathSample,
     PoseSample,
+    TargetSample,
     Track,
     TrackFrame,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "object_states_from_msg",
     "pose_from_odometry",
     "stamp_s",
+    "target_from_msg",
     "tracks_from_msg",
 ]
 
@@ -196,6 +198,11 @@ def fault_from_msg(msg: Any) -> FaultSample:
         detail=str(msg.detail),
         answered_s=float(msg.answered_s),
     )
+
+
+def target_from_msg(msg: Any) -> TargetSample:
+    """``geometry_msgs/PointStamped`` (the autopilot's position target, map ENU) -> target sample."""
+    return TargetSample(t_s=stamp_s(msg.header.stamp), position_m=(msg.point.x, msg.point.y, msg.point.z))
 
 
 def path_from_msg(msg: Any) -> PathSample:

@@ -21,7 +21,7 @@ from uav_scenarios.core.faults import camera_name
 from uav_scenarios.core.scoring.cameras import CameraWatch
 from uav_scenarios.core.scoring.types import FaultSample
 
-__all__ = ["distance_to_polyline_m", "fault_summary", "tracking_stats"]
+__all__ = ["distance_to_polyline_m", "fault_summary", "target_tracking_stats", "tracking_stats"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -112,3 +112,13 @@ def tracking_stats(errors_m: Sequence[float]) -> dict[str, float]:
         "p95_m": float(np.percentile(e, 95)),
         "max_m": float(e.max()),
     }
+
+
+def target_tracking_stats(errors_m: Sequence[tuple[float, float]]) -> dict[str, float]:
+    """:func:`tracking_stats` of ``(error_3d_m, horizontal_error_m)`` pairs, plus ``horizontal_rms_m`` and
+    ``horizontal_max_m`` (the part wind pushes)."""
+    out = tracking_stats([e for e, _ in errors_m])
+    h = np.asarray([v for _, v in errors_m if math.isfinite(v)], dtype=np.float64)
+    out["horizontal_rms_m"] = float(np.sqrt(np.mean(h**2))) if h.size else math.nan
+    out["horizontal_max_m"] = float(h.max()) if h.size else math.nan
+    return out

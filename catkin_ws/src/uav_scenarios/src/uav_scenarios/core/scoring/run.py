@@ -29,7 +29,12 @@ from uav_scenarios.core.config import ScoringSpec
 from uav_scenarios.core.mission import CONFIRM_RADIUS_M
 from uav_scenarios.core.scoring.cameras import CameraFrameSample, CameraWatch
 from uav_scenarios.core.scoring.coco import CocoScores, ContextBands
-from uav_scenarios.core.scoring.faults import distance_to_polyline_m, fault_summary, tracking_stats
+from uav_scenarios.core.scoring.faults import (
+    distance_to_polyline_m,
+    fault_summary,
+    target_tracking_stats,
+    tracking_stats,
+)
 from uav_scenarios.core.scoring.gallery import Gallery, GalleryItem
 from uav_scenarios.core.scoring.geolocation import GeolocationScores
 from uav_scenarios.core.scoring.hota import HotaAccumulator, ground_similarity
@@ -62,6 +67,7 @@ from uav_scenarios.core.scoring.types import (
     PathSample,
     PoseSample,
     SceneTruth,
+    TargetSample,
     TrackFrame,
 )
 from uav_scenarios.core.tracking import MotScorer
@@ -83,6 +89,8 @@ OBJECT_CONTEXTS = ("range", "view_angle", "pixel_size", "visible_fraction")
 _FRAME_KEY_DIGITS = 4  # stamps are matched to 0.1 ms
 #: Pose estimates are scored at most this often (simulation seconds).
 ESTIMATE_PERIOD_S = 0.1
+#: The autopilot's position target is compared with the truth only while it is this fresh (it streams at 10 Hz).
+TARGET_FRESH_S = 1.0
 
 
 def swath_width_m(altitude_m: float, fov_deg: float) -> float:
@@ -204,6 +212,11 @@ class RunScorer:
     _path_m: npt.NDArray[np.float64] | None = None
     _tracking_errors_m: list[float] = field(default_factory=list)
     _tracking_last_t_s: float = -math.inf
+    #: The autopilot's latest position target and the vehicle's (3D, horizontal) distance from it, any mode.
+    _target: TargetSample | None = None
+    _target_errors_m: list[tuple[float, float]] = field(default_factory=list)
+    _target_errors_by_mode: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    _target_last_t_s: float = -math.inf
     _clutter: dict[tuple[str, float], int] = field(default_factory=dict)
     _tracking_cache: dict[str, Any] | None = None
     _takeoff_t_s: float | None = None
@@ -235,6 +248,7 @@ class RunScorer:
         self._poses.append(pose)
         self._agl.append(self._ground_clearance(pose))
         self._track_setpoint(pose)
+        self._track_target(pose)
 
     def add_path(self, sample: PathSample) -> None:
         """The path the autonomy commands (``/autonomy/path``, map ENU); an empty or non-finite one is ignored."""
@@ -253,6 +267,30 @@ class RunScorer:
             return
         self._tracking_last_t_s = pose.t_s
         self._tracking_errors_m.append(distance_to_polyline_m(pose.position_m, self._path_m))
+
+    def add_target(self, sample: TargetSample) -> None:
+        """The autopilot's own position target (``/autopilot_odometry/target``, map ENU); a non-finite one is
+        ignored."""
+        self._advance(sample.t_s)
+        if all(math.isfinite(v) for v in sample.position_m):
+            self._target = sample
+
+    def _track_target(self, pose: PoseSample) -> None:
+        """The vehicle's (ground truth) distance from the autopilot's position target, in any mode, at most 10
+        times a second, while the target is fresh, also per autopilot mode (the controller's view of it): in
+        HOLD the error of the autopilot's own position control, which wind and turbulence grow; in OFFBOARD the
+        distance to the streamed setpoint, which the controller's carrot puts ahead of the vehicle on purpose."""
+        target = self._target
+        if target is None or abs(pose.t_s - target.t_s) > TARGET_FRESH_S:
+            return
+        if pose.t_s - self._target_last_t_s < ESTIMATE_PERIOD_S - 1e-6:
+            return
+        self._target_last_t_s = pose.t_s
+        d = np.subtract(pose.position_m, target.position_m)
+        error = (float(np.linalg.norm(d)), float(math.hypot(d[0], d[1])))
+        self._target_errors_m.append(error)
+        mode = (self._controller[-1].autopilot_mode if self._controller else "") or "unknown"
+        self._target_errors_by_mode.setdefault(mode, []).append(error)
 
     def add_fault(self, fault: FaultSample) -> None:
         """A scripted fault the mission manager sent and the autopilot's answer (an event; ``faults`` section)."""
@@ -775,6 +813,12 @@ class RunScorer:
             "setpoint_tracking": {
                 "reference": "distance from the commanded path (/autonomy/path) while AUTONOMOUS, ground truth",
                 **tracking_stats(self._tracking_errors_m),
+            },
+            "autopilot_tracking": {
+                "reference": "distance from the autopilot's own position target (POSITION_TARGET_LOCAL_NED), any mode,"
+                " ground truth",
+                **target_tracking_stats(self._target_errors_m),
+                "by_mode": {m: target_tracking_stats(e) for m, e in sorted(self._target_errors_by_mode.items())},
             },
             "events": [{"t_s": t, "what": w} for t, w in sorted(self._events, key=lambda e: e[0])],
         }

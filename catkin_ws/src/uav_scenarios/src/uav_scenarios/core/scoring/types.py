@@ -194,6 +194,15 @@ class PathSample:
 
 
 @dataclass(frozen=True)
+class TargetSample:
+    """The autopilot's own position target (POSITION_TARGET_LOCAL_NED in map ENU): the hold point in HOLD, the
+    streamed setpoint in OFFBOARD, the navigator's in a mission (``/autopilot_odometry/target``)."""
+
+    t_s: float
+    position_m: Vec3
+
+
+@dataclass(frozen=True)
 class FaultSample:
     """A scripted fault the mission manager sent (uav_msgs/FaultEvent) and the autopilot's answer."""
 
