@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""loiter.launch for 30 simulated seconds: it takes off, the map grows, the goal changes, nothing collides.
+"""loiter.launch for 30 simulated seconds: it takes off, the map grows, the goal changes, nothing collides; the
+scenario's camera faults (nadir off for 4 s, forward stuck for 5 s) are applied by the real bridge (no nadir
+frames, the same forward picture over new stamps) and recorded by the scorer with the bridge's answer.
 
 The launch file runs on rostest's master with every port free (SITL TCP and sim link, router
 endpoints), the small scenario world and 160x120 cameras in lockstep. The run ends on its own
@@ -20,10 +22,12 @@ import sys
 import threading
 import time
 import unittest
+import zlib
 from pathlib import Path
 
 import rospy
 import rostest
+from sensor_msgs.msg import Image
 
 from uav_msgs.msg import Collision, ControllerState, RunMetrics, ScenarioStatus
 
@@ -43,7 +47,12 @@ class LoiterCheck(unittest.TestCase):
         self.goals: set[tuple[float, float]] = set()
         self.collisions: list[Collision] = []
         self.states: set[str] = set()
+        self.frames: dict[str, list[tuple[float, int]]] = {"nadir": [], "forward": []}
         self.subs = [
+            *[
+                rospy.Subscriber(f"/cameras/{cam}/color/image_raw", Image, self._frame(cam), queue_size=50)
+                for cam in self.frames
+            ],
             rospy.Subscriber("/scenario/status", ScenarioStatus, self._add(self.status), queue_size=50),
             rospy.Subscriber("/scenario/metrics", RunMetrics, self._add(self.metrics), queue_size=50),
             rospy.Subscriber("/sim/collision", Collision, self._add(self.collisions), queue_size=10),
@@ -77,6 +86,13 @@ class LoiterCheck(unittest.TestCase):
                 store.append(msg)
                 if isinstance(msg, ScenarioStatus) and math.isfinite(msg.goal.x):
                     self.goals.add((round(msg.goal.x, 1), round(msg.goal.y, 1)))
+
+        return cb
+
+    def _frame(self, camera: str) -> object:
+        def cb(msg: Image) -> None:
+            with self.lock:
+                self.frames[camera].append((msg.header.stamp.to_sec(), zlib.crc32(msg.data)))
 
         return cb
 
@@ -122,6 +138,50 @@ class LoiterCheck(unittest.TestCase):
         self.assertGreater(summary["map_accuracy"]["precision"], 0.8)
         self.assertGreater(summary["flight"]["distance_m"], 20.0)
         self.assertAlmostEqual(summary["time"]["duration_s"], 30.0, delta=1.0)
+        self._check_camera_faults(summary)
+
+    def _check_camera_faults(self, summary: dict) -> None:  # type: ignore[type-arg]
+        """The scripted camera faults: the bridge's answers in the faults section, the frames as they went out."""
+        faults = {(f["unit"], f["type"]): f for f in summary["faults"]}
+        self.assertEqual(
+            sorted(faults), [("camera_forward", "ok"), ("camera_forward", "stuck"), ("camera_nadir", "off"),
+                             ("camera_nadir", "ok")], summary["faults"],
+        )  # fmt: skip
+        for f in faults.values():
+            self.assertEqual(f["result"], "ACCEPTED", f)
+            self.assertTrue(math.isfinite(f["answered_s"]), f)
+            self.assertLess(abs(f["run_t_s"] - f["at_s"]), 1.0, f)  # sent at its run time
+        events = [e["what"] for e in summary["events"]]
+        self.assertIn("fault camera_nadir off: ACCEPTED", events)
+        with self.lock:
+            nadir, forward = list(self.frames["nadir"]), list(self.frames["forward"])
+        # nadir off: no frame captured while it was off, frames before and after
+        off, on = faults[("camera_nadir", "off")], faults[("camera_nadir", "ok")]
+        t0, t1 = off["answered_s"], on["answered_s"]
+        self.assertGreater(t1 - t0, 3.0, (off, on))
+        during = [t for t, _ in nadir if t0 + 1e-6 < t <= t1]
+        self.assertEqual(during, [], f"nadir frames while off ({t0:.2f}-{t1:.2f} s)")
+        self.assertTrue(any(t <= t0 for t, _ in nadir) and any(t > t1 for t, _ in nadir), "nadir frames")
+        followed = [c["what"] for c in off["followed"]]
+        self.assertIn("camera nadir: frames stopped", followed, off)
+        self.assertEqual(off["camera"]["frames"], 0, off)
+        self.assertTrue(any(w.startswith("camera nadir: frames resumed") for w in (c["what"] for c in on["followed"])))
+        # forward stuck: the last good picture again and again, each with a new stamp; live again after
+        stuck, ok = faults[("camera_forward", "stuck")], faults[("camera_forward", "ok")]
+        t0, t1 = stuck["answered_s"], ok["answered_s"]
+        before = [c for t, c in forward if t <= t0]
+        during = [(t, c) for t, c in forward if t0 + 1e-6 < t <= t1]
+        after = [c for t, c in forward if t > t1 + 1e-6]
+        self.assertGreater(len(during), 20, f"forward frames while stuck: {len(during)}")  # 10 Hz for 5 s
+        self.assertEqual({c for _, c in during}, {before[-1]}, "the stuck camera showed other pictures")
+        stamps = [t for t, _ in during]
+        self.assertTrue(all(b > a for a, b in itertools.pairwise(stamps)), "stuck frames must carry new stamps")
+        self.assertGreater(len(set(before[-20:])), 10, "the forward pictures were not changing before the fault")
+        self.assertGreater(len(set(after)), 10, "the forward camera did not come back to life")
+        self.assertIn(
+            "camera forward: image frozen (the same picture 3 frames in a row)", [c["what"] for c in stuck["followed"]]
+        )
+        self.assertEqual(stuck["camera"]["distinct_images"], 1, stuck)
 
     def test_a_crashed_bridge_ends_the_run_and_keeps_the_metrics(self) -> None:
         deadline = time.monotonic() + 120.0

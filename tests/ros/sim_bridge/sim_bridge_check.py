@@ -4,7 +4,7 @@
 The test node owns the fake SITL (a free UDP port) and starts the bridge's launch file
 with that port, so the bridge is the lockstep master of a scripted flight: 30 m over
 home, drifting east at 2 m/s.  It checks /clock, tf, odometry, every camera topic,
-detections, collisions, the terrain reports and the set_object_pose service.
+detections, collisions, the terrain reports, the set_object_pose service and camera faults (set_camera_fault).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from fake_sitl_peer import HOME, FakeSitl, hover_east  # noqa: E402
 from uav_common.geo import LocalProjection  # noqa: E402
 from uav_common.ros.arrays import cloud_to_xyzrgb, image_to_array  # noqa: E402
 from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState  # noqa: E402
-from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest  # noqa: E402
+from uav_msgs.srv import SetCameraFault, SetObjectPose, SetObjectPoseRequest  # noqa: E402
 from uav_sim_bridge.core.world_config import ObjectClass, load_world_config  # noqa: E402
 from uav_sim_bridge.shell.world_store import load_or_generate  # noqa: E402
 
@@ -317,6 +317,55 @@ class SimBridgeCheck(unittest.TestCase):
             # it moved as far as its speed says (paths turn: a little less, never more)
             self.assertLessEqual(moved, speed * dt + 0.05)
             self.assertGreater(moved, 0.5 * speed * dt)
+
+    def test_9_camera_faults_through_the_service(self) -> None:
+        rospy.wait_for_service("/sim_bridge/set_camera_fault", 10.0)
+        fault = rospy.ServiceProxy("/sim_bridge/set_camera_fault", SetCameraFault)
+        bad = fault(camera="down", type="off")
+        self.assertEqual(bad.result, "DENIED")
+        self.assertIn("unknown camera 'down'; this bridge runs forward, nadir", bad.detail)
+        self.assertEqual(fault(camera="nadir", type="melted").result, "DENIED")
+        color, depth = "/cameras/nadir/color/image_raw", "/cameras/nadir/depth/image_raw"
+
+        def after(topic: str, t_s: float) -> Image:  # the first message of a frame captured after t_s
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline:
+                with self.inbox.lock:
+                    later = [m for m in self.inbox.history.get(topic, []) if m.header.stamp.to_sec() > t_s + 1e-6]
+                if later:
+                    return later[0]  # type: ignore[return-value]
+                time.sleep(0.02)
+            raise AssertionError(f"no {topic} captured after {t_s}")
+
+        def noise(msg: Image) -> float:
+            rgb = image_to_array(msg).astype(np.int16)
+            return float(np.abs(np.diff(rgb[::4], axis=1)).mean())
+
+        live = after(color, 0.0)
+        self.assertLess(noise(live), 40.0)
+        # garbage: noise of the right size and encoding, finite depth
+        g = fault(camera="nadir", type="garbage")
+        self.assertEqual((g.result, g.detail), ("ACCEPTED", ""))
+        img, d = after(color, g.applied_s), after(depth, g.applied_s)
+        self.assertEqual((img.encoding, img.width, img.height), ("rgb8", 640, 480))
+        self.assertGreater(noise(img), 70.0)
+        self.assertEqual(d.encoding, "32FC1")
+        self.assertTrue(np.all(np.isfinite(image_to_array(d))))
+        # off: the nadir camera goes quiet (no image, no camera_info), the forward camera goes on
+        off = fault(camera="nadir", type="off")
+        self.assertEqual(off.result, "ACCEPTED")
+        with self.inbox.lock:
+            fwd = self.inbox.count["/cameras/forward/color/image_raw"]
+        self.inbox.wait("/cameras/forward/color/image_raw", fwd + 15)
+        for topic in (color, depth, "/cameras/nadir/color/camera_info", "/cameras/nadir/points"):
+            with self.inbox.lock:
+                stamps = [m.header.stamp.to_sec() for m in self.inbox.history.get(topic, [])]
+            self.assertTrue(stamps)
+            self.assertLessEqual(max(stamps), off.applied_s + 1e-6, f"{topic} while the camera was off")
+        # ok: live pictures again
+        ok = fault(camera="nadir", type="ok")
+        self.assertEqual(ok.result, "ACCEPTED")
+        self.assertLess(noise(after(color, ok.applied_s)), 40.0)
 
     def _wait_detection(self, iid: int, camera: str, start: int, *, present: bool) -> DetectionArray:
         deadline = time.monotonic() + 30.0

@@ -17,6 +17,7 @@ from uav_common.config import ConfigError, deep_merge, from_mapping, load_yaml_m
 from uav_common.paths import config_dir, config_file
 from uav_common.robot import RobotDescription, load_robot_description
 from uav_sim_bridge.core.camera import CameraConfig, MountConfig
+from uav_sim_bridge.core.camera_faults import CameraFaultsConfig
 from uav_sim_bridge.core.collision import CollisionConfig
 from uav_sim_bridge.core.detections import DetectionConfig
 from uav_sim_bridge.core.environment import EnvironmentConfig, merge_environment
@@ -152,6 +153,8 @@ class SimBridgeConfig:
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     #: Who moves and how, over the world's own ``people``/``vehicles`` motion keys.
     actors: ActorsConfig = field(default_factory=ActorsConfig)
+    #: Faults injected in flight into the cameras (``~set_camera_fault``): their seed, the intermittent drop rate.
+    camera_faults: CameraFaultsConfig = field(default_factory=CameraFaultsConfig)
     home: HomeConfig | None = None
     map_frame: str = "map"
     base_frame: str = "base_link"

@@ -19,6 +19,16 @@ reached their capture time plus the latency (stamped with the capture time, as a
 driver stamps its exposure); dropped frames are rendered (their detections are ground truth
 of the scene and are kept) but their images are not returned.
 
+Camera faults injected in flight (:meth:`BridgeEngine.set_camera_fault`; the model is
+:mod:`uav_sim_bridge.core.camera_faults`) act on what the camera unit delivers, at capture time: its images
+(colour, depth, and with them the points, the instance and class images that label them), its camera_info and
+the box-only detector's boxes (``CameraOutput.boxes``, a detector run on those images). ``off`` and a frame an
+``intermittent`` camera loses deliver none of it; ``stuck`` delivers the last good frame's images and boxes
+again with the new capture stamp; ``garbage`` delivers noise of the right size and encoding (the instance
+labels stay those of the scene in view; the box-only detector finds nothing in noise). The ground truth of
+the scene (``detections``, ``/detections/ground_truth``) is never faulted: it is what the camera should have
+seen, so the scorer counts what the fault made the autonomy miss.
+
 The engine must be used from the thread that created its renderer (GL rule).
 """
 
@@ -38,6 +48,7 @@ from uav_sim_bridge.config import SimBridgeConfig
 from uav_sim_bridge.core import figures
 from uav_sim_bridge.core.camera import CameraModel
 from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, EffectsResult, camera_rng
+from uav_sim_bridge.core.camera_faults import CameraFaults, Verdict, garbage_color, garbage_depth
 from uav_sim_bridge.core.collision import CollisionChecker, Contact
 from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections, visible_candidates
 from uav_sim_bridge.core.figures import PersonPose
@@ -58,6 +69,8 @@ __all__ = ["BridgeEngine", "CameraOutput", "ObjectState", "StepOutput", "Terrain
 _GAIT_STEPS = 30
 # Surfaces up to this far above base_link still count as "under" the vehicle (its gear hangs below it).
 _GROUND_TOLERANCE_M = 0.5
+#: A ``garbage`` depth image is uniform between the camera's near plane and this far (or its far plane).
+GARBAGE_MAX_DEPTH_M = 300.0
 
 
 @dataclass(frozen=True)
@@ -77,6 +90,21 @@ class CameraOutput:
     t_capture_s: float = math.nan
     exposure_s: float = 0.0  # camera effects: exposure time (0: no exposure model)
     gain: float = 1.0
+    #: The camera fault that shaped this output: "" (none), off, dropped (intermittent), stuck or garbage.
+    fault: str = ""
+    #: With a fault: what the box-only detector reports for this frame (the frozen frame's boxes when stuck,
+    #: none in garbage); None: nothing. Without one, the box-only detector reports ``detections``.
+    boxes: list[GroundTruthDetection] | None = None
+
+    @property
+    def delivered(self) -> bool:
+        """Whether the camera delivered this frame (camera_info, images, the box-only detector's boxes)."""
+        return self.fault not in ("off", "dropped")
+
+    @property
+    def detector_boxes(self) -> list[GroundTruthDetection] | None:
+        """What the box-only detector reports for this frame (None: nothing to publish)."""
+        return self.boxes if self.fault else self.detections
 
 
 @dataclass(frozen=True)
@@ -138,6 +166,11 @@ class BridgeEngine:
                     fx_cfg, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, camera_rng(env.seed, name)
                 )
         self._depth_rng = camera_rng(env.seed, "depth_noise")
+        fc = cfg.camera_faults
+        self.camera_faults: CameraFaults[CameraOutput] = CameraFaults(
+            {name: camera_rng(fc.seed, f"fault:{name}") for name in self.cameras},
+            intermittent_drop_probability=fc.intermittent_drop_probability,
+        )
         self._pool: ThreadPoolExecutor | None = None
         self._delayed: list[CameraOutput] = []
         # Moving people and vehicles.
@@ -375,7 +408,7 @@ class BridgeEngine:
             assert frame is not None
             effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
             outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
-        outputs = self._deliver(outputs, t)
+        outputs = self._deliver([f for f in map(self._faulted, outputs) if f is not None], t)
         reach = cfg.collision.vehicle_radius_m + 1.0
         if self._movers_near(state.position_m, t, reach) or (
             self._previous_position is not None and self._movers_near(self._previous_position, t, reach)
@@ -443,6 +476,42 @@ class BridgeEngine:
             if dets is None:
                 return None, None
         return CameraOutput(cam, t_opt, frame, depth, dets, t), job
+
+    def set_camera_fault(self, camera: str, failure_type: str) -> None:
+        """Inject a fault into a camera (``ok`` clears it); frames captured from the next step on carry it.
+
+        Raises:
+            CameraFaultError: an unknown camera or fault type.
+        """
+        self.camera_faults.set(camera, failure_type)
+
+    def _faulted(self, out: CameraOutput) -> CameraOutput | None:  # noqa: PLR0911 - one return per verdict
+        """A captured frame through its camera's fault (None: nothing of it is left to publish)."""
+        name = out.camera.name
+        complete = out.frame is not None and out.depth_m is not None
+        r = self.camera_faults.apply(name, out, complete=complete)
+        if r.verdict is Verdict.DELIVERED:
+            return out
+        if r.verdict is Verdict.GARBAGE:
+            cam, rng = out.camera, self.camera_faults.rng(name)
+            if not complete or out.frame is None:
+                return dataclasses.replace(out, fault="garbage", boxes=[])
+            color = garbage_color(rng, cam.height, cam.width)
+            depth = garbage_depth(rng, cam.height, cam.width, cam.near_m, min(cam.far_m, GARBAGE_MAX_DEPTH_M))
+            frame = RenderedFrame(color, depth, out.frame.instance_id)
+            return dataclasses.replace(out, frame=frame, depth_m=depth, fault="garbage", boxes=[])
+        if r.verdict is Verdict.STUCK:
+            frozen = r.frame
+            if frozen is None:  # stuck before the camera ever delivered an image: it shows nothing
+                return dataclasses.replace(out, frame=None, depth_m=None, fault="stuck", boxes=None)
+            boxes = (frozen.detections or []) if out.detections is not None else None
+            if complete:
+                return dataclasses.replace(out, frame=frozen.frame, depth_m=frozen.depth_m, fault="stuck", boxes=boxes)
+            return dataclasses.replace(out, fault="stuck", boxes=boxes)
+        # off, or a frame an intermittent camera lost: only the scene's ground truth remains
+        if out.detections is None:
+            return None
+        return dataclasses.replace(out, frame=None, depth_m=None, fault=r.verdict.value, boxes=None)
 
     def _effects_pool(self) -> ThreadPoolExecutor:
         """One worker: each camera's effects run in submission order (deterministic), beside the GL thread."""

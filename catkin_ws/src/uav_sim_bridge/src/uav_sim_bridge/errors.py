@@ -14,6 +14,7 @@ from uav_common.errors import ConfigError, ResourceError
 
 __all__ = [
     "CameraError",
+    "CameraFaultError",
     "RenderError",
     "SimBridgeConfigError",
     "SimBridgeError",
@@ -41,6 +42,10 @@ class WorldFileError(WorldError):
 
 class CameraError(SimBridgeError, ValueError):
     """Invalid camera intrinsics, mount, pose or image shape (a ``ValueError`` too, so config loading reports it)."""
+
+
+class CameraFaultError(SimBridgeError, ValueError):
+    """A camera fault names an unknown camera or type (``uav_sim_bridge.core.camera_faults``)."""
 
 
 class RenderError(SimBridgeError, ResourceError):

@@ -27,7 +27,7 @@ from typing import Any, Literal
 from mavlink_router.core.impairment import ImpairmentConfig
 from uav_common.config import config_errors_as, deep_merge, from_mapping, load_yaml_mapping
 from uav_common.validate import require_in_range
-from uav_scenarios.core.faults import not_simulated
+from uav_scenarios.core.faults import camera_name, not_simulated
 from uav_scenarios.errors import ScenarioConfigError
 from uav_sim_bridge.core.motion import ActorsConfig
 
@@ -451,7 +451,8 @@ class WindSpec:
         require_in_range("shear_exponent", self.shear_exponent, 0.0, 1.0)
 
 
-#: MAVLink FAILURE_UNIT names (MAV_CMD_INJECT_FAILURE) a fault may name.
+#: MAVLink FAILURE_UNIT names (MAV_CMD_INJECT_FAILURE) a fault may name, and the range's cameras (the sim
+#: bridge's faults: uav_scenarios.core.faults.CAMERA).
 FAULT_UNITS = (
     "gyro", "accel", "mag", "baro", "gps", "optical_flow", "vio", "distance_sensor", "airspeed",
     "battery", "motor", "servo", "avoidance", "rc_signal", "mavlink_signal", "camera_nadir", "camera_forward",
@@ -464,7 +465,8 @@ FAULT_TYPES = ("ok", "off", "stuck", "garbage", "wrong", "slow", "delayed", "int
 class FaultSpec:
     """A fault injected in flight, as PX4's ``MAV_CMD_INJECT_FAILURE`` does: the mission manager sends the command
     to the autopilot at ``at_s`` (simulated seconds since the mission started) and, with ``duration_s``, a
-    ``FAILURE_TYPE_OK`` that long after (``uav_scenarios.core.faults``)."""
+    ``FAILURE_TYPE_OK`` that long after (``uav_scenarios.core.faults``). A camera unit (``camera_nadir``,
+    ``camera_forward``: off, stuck, garbage, intermittent) goes to the sim bridge instead (``~set_camera_fault``)."""
 
     at_s: float
     unit: str
@@ -487,6 +489,9 @@ class FaultSpec:
             raise ValueError(msg)
         if not 0 <= self.instance <= 255:
             msg = f"instance must be in [0, 255], got {self.instance}"
+            raise ValueError(msg)
+        if camera_name(self.unit) and self.instance != 0:
+            msg = f"instance: {self.unit} is one camera: its instance must be 0, got {self.instance}"
             raise ValueError(msg)
         if self.duration_s is not None:
             require_in_range("duration_s", self.duration_s, 0.0, 1e6)
@@ -714,7 +719,7 @@ class Scenario:
                     f"there; it cannot have motion {motion}"
                 )
                 raise ValueError(msg)
-        if self.faults and self.autopilot is not AutopilotKind.PX4:
+        if any(not camera_name(f.unit) for f in self.faults) and self.autopilot is not AutopilotKind.PX4:
             msg = (
                 f"faults: failure injection is PX4's (MAV_CMD_INJECT_FAILURE); the {self.autopilot.value} "
                 "personality answers it UNSUPPORTED, as ArduCopter does: use autopilot: px4 or remove the faults"

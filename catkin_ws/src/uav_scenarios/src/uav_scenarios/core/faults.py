@@ -7,6 +7,10 @@ each command and what followed (:mod:`uav_scenarios.core.scoring.faults`).
 Each fault ``{at_s, unit, type, instance, duration_s}`` becomes an *inject* action at ``at_s`` (run time: simulated
 seconds since the mission started) and, with ``duration_s``, a *clear* action (``FAILURE_TYPE_OK``) at
 ``at_s + duration_s``. Units and types are MAVLink's ``FAILURE_UNIT`` and ``FAILURE_TYPE`` numbers.
+
+The camera units (:data:`CAMERA`: ``camera_nadir``, ``camera_forward``) are the range's own, as MAVLink has no
+``FAILURE_UNIT`` for a payload camera: the mission manager asks the sim bridge to apply them
+(``/sim_bridge/set_camera_fault``, :mod:`uav_scenarios.ros.camera_faults`) instead of the autopilot.
 """
 
 from __future__ import annotations
@@ -16,11 +20,13 @@ from dataclasses import dataclass
 from typing import Protocol
 
 __all__ = [
+    "CAMERA",
     "FAILURE_TYPE_CODES",
     "FAILURE_UNIT_CODES",
     "SIMULATED",
     "FaultAction",
     "FaultSchedule",
+    "camera_name",
     "fault_actions",
     "not_simulated",
 ]
@@ -43,10 +49,27 @@ SIMULATED: dict[str, frozenset[str]] = {
 }
 
 
+#: The simulated cameras' faults, the sim bridge's (``camera_<name>``: its camera ``<name>``; docs/sim_bridge.md
+#: "Camera faults"); ``ok`` clears any of them.
+CAMERA: dict[str, frozenset[str]] = {
+    "camera_nadir": frozenset({"off", "stuck", "garbage", "intermittent"}),
+    "camera_forward": frozenset({"off", "stuck", "garbage", "intermittent"}),
+}
+
+
+def camera_name(unit: str) -> str:
+    """The sim bridge's name of a camera unit (``camera_nadir`` -> ``nadir``); "" for an autopilot unit."""
+    return unit.removeprefix("camera_") if unit in CAMERA else ""
+
+
 def not_simulated(unit: str, failure_type: str) -> str:
     """Why the range cannot run this fault ("" when it can)."""
+    if unit in CAMERA:
+        if failure_type == "ok" or failure_type in CAMERA[unit]:
+            return ""
+        return f"{unit} {failure_type} is not simulated; a camera takes {'/'.join(sorted(CAMERA[unit]))}"
     if unit not in FAILURE_UNIT_CODES:
-        return f"{unit} is not a MAVLink FAILURE_UNIT: the simulated cameras take no injected failures yet"
+        return f"{unit} is not a MAVLink FAILURE_UNIT nor a camera of the range ({', '.join(CAMERA)})"
     if failure_type == "ok" and unit in SIMULATED:
         return ""
     if failure_type not in SIMULATED.get(unit, frozenset()):
@@ -76,6 +99,11 @@ class FaultAction:
     failure_type: str
     instance: int
     clear: bool = False
+
+    @property
+    def camera(self) -> str:
+        """The sim bridge's camera of a camera fault; "" for an autopilot fault (sent over MAVLink)."""
+        return camera_name(self.unit)
 
     @property
     def unit_code(self) -> int:

@@ -13,21 +13,25 @@ Publishes:
     ``/scenario/config`` (std_msgs/String, latched): the scenario file's text, for the bag and the report.
     ``/scenario/status`` (uav_msgs/ScenarioStatus) at 2 Hz and on every change.
     ``/autonomy/target_point`` (geometry_msgs/PointStamped): the confirmed person (goal selector's target).
-    ``/scenario/faults`` (uav_msgs/FaultEvent, latched queue): each scripted fault sent and the autopilot's answer.
-MAVLink (only when the scenario has ``faults``): over ``~autopilot_url`` (the router's TCP server) it sets
-    ``SYS_FAILURE_EN`` to 1 at start and sends each fault as ``MAV_CMD_INJECT_FAILURE`` at its run time (and
+    ``/scenario/faults`` (uav_msgs/FaultEvent, latched queue): each scripted fault sent and the answer (the
+    autopilot's, or the sim bridge's for a camera).
+MAVLink (only when the scenario has autopilot ``faults``): over ``~autopilot_url`` (the router's TCP server) it
+    sets ``SYS_FAILURE_EN`` to 1 at start and sends each fault as ``MAV_CMD_INJECT_FAILURE`` at its run time (and
     ``FAILURE_TYPE_OK`` ``duration_s`` later), as a test rig would (:mod:`uav_scenarios.shell.fault_link`).
 Calls:
     ``<~controller>/set_state`` (uav_msgs/SetControllerState): AUTONOMOUS or SCRIPTED (pattern from the
     scenario) once the controller's link is up, HOLD staring at the person once confirmed.
+    ``~camera_fault_service`` (uav_msgs/SetCameraFault, default ``/sim_bridge/set_camera_fault``): each camera
+    fault (``unit: camera_nadir|camera_forward``) at its run time, and ``ok`` ``duration_s`` later
+    (:mod:`uav_scenarios.ros.camera_faults`).
 Parameters:
     ``~scenario`` (str, required); ``~controller`` (str, default ``/waypoint_controller``);
     ``~expect_mission`` (str, ""): refuse a scenario of another mission (``loiter.launch`` with a SAR file);
     ``~depth_source`` (str, ""): what the launch file started; must match the scenario's ``depth_source``;
     ``~detector`` (str, ""): the detector the launch file started; must match ``perception.detector``;
     ``~pose_source`` (str, ""): likewise for ``pose_source``;
-    ``~autopilot_url`` (str, ""): pymavlink URL of the autopilot for scripted faults (a scenario with ``faults``
-    and no URL is refused);
+    ``~autopilot_url`` (str, ""): pymavlink URL of the autopilot for scripted faults (a scenario with autopilot
+    ``faults`` and no URL is refused); ``~camera_fault_service`` (str): see Calls;
     ``~wait_for_recorder`` (bool, false): the run starts only once ``/record`` (rosbag) subscribes to every
     recorded topic that has a publisher and is connected to each of them (both ends' ``getBusInfo`` list the
     link; in deterministic runs the bridge holds simulation time instead), so the bag holds the
@@ -67,7 +71,7 @@ from uav_scenarios.core.config import (
     load_scenario,
     recorded_topics,
 )
-from uav_scenarios.core.faults import FaultSchedule, fault_actions
+from uav_scenarios.core.faults import FaultSchedule, camera_name, fault_actions
 from uav_scenarios.core.mission import (
     ConfirmationGate,
     Phase,
@@ -79,6 +83,7 @@ from uav_scenarios.core.mission import (
 )
 from uav_scenarios.core.params import needs_terrain, scripted_request
 from uav_scenarios.errors import ScenarioConfigError, ScenarioError
+from uav_scenarios.ros.camera_faults import CameraFaultCaller
 from uav_scenarios.ros.messages import status_msg
 from uav_scenarios.ros.params import MissionManagerParams
 from uav_scenarios.ros.records import detections_from_msg
@@ -147,6 +152,7 @@ class MissionManager:
         self.target_pub: rospy.Publisher | None = None
         self.fault_pub: rospy.Publisher | None = None
         self.fault_link: FaultLink | None = None
+        self.camera_faults: CameraFaultCaller | None = None
 
     def start(self) -> None:
         config_pub = rospy.Publisher("/scenario/config", String, queue_size=1, latch=True)
@@ -163,21 +169,41 @@ class MissionManager:
             rospy.Subscriber(GEOLOCATED_TOPIC, DetectionArray, self.on_detections, queue_size=20)
         rospy.Timer(rospy.Duration(0.5), self.on_tick)
 
-    def start_faults(self, autopilot_url: str) -> None:
-        """Send the scenario's faults over MAVLink at their run times (from a thread of the fault link's)."""
+    def start_faults(self, autopilot_url: str, camera_fault_service: str) -> None:
+        """Send the scenario's faults at their run times: the autopilot's over MAVLink (from a thread of the fault
+        link's), the cameras' to the sim bridge (from a thread of the camera fault caller's)."""
         if not self.scenario.faults:
             return
         self.fault_pub = rospy.Publisher("/scenario/faults", FaultEvent, queue_size=20, latch=True)
-        self.fault_link = FaultLink(
-            autopilot_url,
-            FaultSchedule(fault_actions(self.scenario.faults)),
-            elapsed_s=lambda: None if self.start_sim_s is None else rospy.get_time() - self.start_sim_s,
-            now_s=rospy.get_time,
-            on_result=self.on_fault_result,
-        )
-        self.fault_link.start()
-        rospy.on_shutdown(self.fault_link.stop)
-        rospy.loginfo(f"mission_manager: {len(self.scenario.faults)} scripted fault(s), sent over {autopilot_url}")
+        actions = fault_actions(self.scenario.faults)
+        autopilot = [a for a in actions if not a.camera]
+        cameras = [a for a in actions if a.camera]
+
+        def elapsed() -> float | None:
+            return None if self.start_sim_s is None else rospy.get_time() - self.start_sim_s
+
+        if autopilot:
+            self.fault_link = FaultLink(
+                autopilot_url,
+                FaultSchedule(autopilot),
+                elapsed_s=elapsed,
+                now_s=rospy.get_time,
+                on_result=self.on_fault_result,
+            )
+            self.fault_link.start()
+            rospy.on_shutdown(self.fault_link.stop)
+            rospy.loginfo(f"mission_manager: {len(autopilot)} scripted autopilot fault action(s), over {autopilot_url}")
+        if cameras:
+            self.camera_faults = CameraFaultCaller(
+                camera_fault_service,
+                FaultSchedule(cameras),
+                elapsed_s=elapsed,
+                now_s=rospy.get_time,
+                on_result=self.on_fault_result,
+            )
+            self.camera_faults.start()
+            rospy.on_shutdown(self.camera_faults.stop)
+            rospy.loginfo(f"mission_manager: {len(cameras)} camera fault action(s), to {camera_fault_service}")
 
     def on_fault_result(self, r: FaultResult) -> None:
         a = r.action
@@ -479,12 +505,12 @@ def _run() -> None:
         scripted=scripted,
     )
     node.wait_for_recorder = params.wait_for_recorder
-    if scenario.faults and not params.autopilot_url:
+    if any(not camera_name(f.unit) for f in scenario.faults) and not params.autopilot_url:
         msg = (
-            f"{scenario.source} scripts faults but ~autopilot_url is empty: the mission manager sends them over "
-            "MAVLink (scenario_common.launch sets it to the router's TCP server)"
+            f"{scenario.source} scripts autopilot faults but ~autopilot_url is empty: the mission manager sends "
+            "them over MAVLink (scenario_common.launch sets it to the router's TCP server)"
         )
         raise ScenarioConfigError(msg)
     node.start()
-    node.start_faults(params.autopilot_url)
+    node.start_faults(params.autopilot_url, params.camera_fault_service)
     rospy.spin()

@@ -19,7 +19,8 @@ Subscribes:
     (geometry_msgs/PointStamped: the autopilot's own position target, for ``autopilot_tracking``);
     camera images ``/cameras/<cam>/{color,depth,instance}/image_raw`` only around snapshot times, and the
     detector camera's color images when the detector is not the ground truth (``scoring.gallery_size`` > 0:
-    the gallery of its worst mistakes is cut from them).
+    the gallery of its worst mistakes is cut from them); the color images of each camera the scenario scripts
+    a fault for (``unit: camera_<cam>``): whether its frames stop, freeze or turn to noise follows the fault.
 Publishes:
     ``/scenario/metrics`` (uav_msgs/RunMetrics) at ``scoring.metrics_rate_hz`` (sim time) and once at the end;
     ``/scenario/snapshot/layers`` and ``/scenario/snapshot/features`` (uav_msgs/GridLayers, at most
@@ -74,7 +75,7 @@ from std_msgs.msg import Header
 from uav_common.config import ConfigError
 from uav_common.detection_classes import load_detection_classes
 from uav_common.paths import config_file
-from uav_common.ros.arrays import image_msg
+from uav_common.ros.arrays import MessageLayoutError, image_msg
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import (
@@ -104,6 +105,7 @@ from uav_scenarios.core.config import (
     estimate_topic,
     load_scenario,
 )
+from uav_scenarios.core.faults import camera_name
 from uav_scenarios.core.scoring.gallery import crop_tile, mosaic
 from uav_scenarios.core.scoring.metrics import voxel_accuracy, voxel_keys_from_indices
 from uav_scenarios.core.scoring.run import RunScorer, swath_width_m
@@ -113,6 +115,7 @@ from uav_scenarios.ros.messages import downsampled_layers_msg, json_safe, metric
 from uav_scenarios.ros.params import ScorerParams
 from uav_scenarios.ros.records import (
     battery_from_msg,
+    camera_frame_from_msg,
     collision_from_msg,
     controller_from_msg,
     depth_metrics_from_msg,
@@ -278,6 +281,8 @@ class ScorerNode:
         sub("/autonomy/goal_reason", GoalReason, self._feed(goal_from_msg, "add_goal"), queue_size=QUEUE)
         sub("/uav/controller/state", ControllerState, self.on_controller, queue_size=QUEUE)
         sub("/scenario/faults", FaultEvent, self._feed(fault_from_msg, "add_fault"), queue_size=QUEUE)
+        for cam in sorted({camera_name(f.unit) for f in self.scenario.faults} - {""}):
+            sub(f"/cameras/{cam}/color/image_raw", Image, self._camera_frame(cam), queue_size=50, buff_size=2**24)
         sub("/autonomy/path", PathMsg, self._feed(path_from_msg, "add_path"), queue_size=QUEUE)
         sub(
             "/depth_evaluator/metrics",
@@ -321,6 +326,17 @@ class ScorerNode:
         except ScenarioError as err:
             self.truth_note = f"no ground truth: {err}"
             rospy.logerr(f"scorer: {self.truth_note}; % mapped uses world.size_m, no map IoU")
+
+    def _camera_frame(self, camera: str) -> Any:
+        def callback(msg: Image) -> None:
+            try:
+                record = camera_frame_from_msg(msg, camera)
+            except MessageLayoutError as err:
+                rospy.logwarn_throttle(10.0, f"scorer: /cameras/{camera}/color/image_raw: {err}")
+                return
+            self._push(record.t_s, "add_camera_frame", record)
+
+        return callback
 
     def _feed(self, convert: Any, method: str) -> Any:
         def callback(msg: Any) -> None:

@@ -14,7 +14,7 @@ from uav_scenarios.errors import ReportError
 from uav_scenarios.report.data import RunData
 from uav_scenarios.report.figures import FIGURES
 
-__all__ = ["Report", "build_report", "flatten_metrics"]
+__all__ = ["Report", "build_report", "faults_table", "flatten_metrics"]
 
 _HEADLINES = (
     ("time.duration_s", "run length (sim s)"),
@@ -138,6 +138,41 @@ def _context_table(summary: Mapping[str, Any]) -> str:
     return f"<table>{head}{''.join(rows)}</table>{note}"
 
 
+def faults_table(summary: Mapping[str, Any]) -> str:
+    """The run's scripted faults (metrics ``faults``) as an HTML table: when, what, the answer, what followed and,
+    for a camera fault, its camera's frames; "" without faults."""
+    faults = summary.get("faults") if isinstance(summary, Mapping) else None
+    if not isinstance(faults, list) or not faults:
+        return ""
+    rows = []
+    for f in faults:
+        if not isinstance(f, Mapping):
+            continue
+        inst = f" {f.get('instance')}" if f.get("instance") else ""
+        what = f"{f.get('unit')}{inst} {f.get('type')}" + (" (end of the fault)" if f.get("clear") else "")
+        answer = f"{f.get('result')}" + (f": {f.get('detail')}" if f.get("detail") else "")
+        followed = "<br>".join(
+            f"+{_fmt(c.get('after_s'))} s {html.escape(str(c.get('what')))}"
+            for c in f.get("followed", [])
+            if isinstance(c, Mapping)
+        )
+        cam = f.get("camera")
+        frames = (
+            f"{cam.get('frames')} frames ({_fmt(cam.get('rate_hz'))} Hz, before {_fmt(cam.get('rate_before_hz'))} Hz), "
+            f"{cam.get('distinct_images')} distinct, {cam.get('noise_frames')} noise"
+            if isinstance(cam, Mapping)
+            else ""
+        )
+        rows.append(
+            f"<tr><td class=v>{_fmt(f.get('run_t_s'))}</td><td>{html.escape(what)}</td>"
+            f"<td>{html.escape(answer)}</td><td>{followed or '–'}</td><td>{html.escape(frames) or '–'}</td></tr>"
+        )
+    return (
+        "<table><tr><th>run t (s)</th><th>fault</th><th>answer</th><th>what followed</th>"
+        f"<th>camera frames until the next fault</th></tr>{''.join(rows)}</table>"
+    )
+
+
 def build_report(run: RunData, out_dir: Path, *, versions: Mapping[str, str] | None = None) -> Report:
     """Draw every figure into ``out_dir/figures`` and write ``out_dir/report.html``.
 
@@ -192,6 +227,9 @@ def build_report(run: RunData, out_dir: Path, *, versions: Mapping[str, str] | N
     parts.append(
         f'<section id="metrics"><h2>Metrics</h2><table><tr><th>metric</th><th>value</th></tr>{rows}</table></section>'
     )
+    faults = faults_table(run.summary)
+    if faults:
+        parts.append(f'<section id="faults"><h2>Scripted faults</h2>{faults}</section>')
     events = run.summary.get("events", []) if isinstance(run.summary, Mapping) else []
     if events:
         ev_rows = "".join(

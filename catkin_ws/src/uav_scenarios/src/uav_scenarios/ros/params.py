@@ -33,6 +33,8 @@ class MissionManagerParams:
     pose_source: str = ""
     #: The test rig's MAVLink link for scripted faults (pymavlink URL: the router's TCP server); "" = none.
     autopilot_url: str = ""
+    #: The sim bridge's service the scenario's camera faults go to.
+    camera_fault_service: str = "/sim_bridge/set_camera_fault"
     wait_for_recorder: bool = False
     shutdown_on_stop: bool = True
     linger_s: float = 1.0

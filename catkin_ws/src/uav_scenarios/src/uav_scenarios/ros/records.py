@@ -10,11 +10,13 @@ scoring records.
 from __future__ import annotations
 
 import math
+import zlib
 from typing import Any
 
 import numpy as np
 
 from uav_common.ros.arrays import MessageLayoutError, image_to_array, image_to_rgb
+from uav_scenarios.core.scoring.cameras import CameraFrameSample, noise_level
 from uav_scenarios.core.scoring.trails import ObjectStateRecord
 from uav_scenarios.core.scoring.types import (
     BatterySample,
@@ -37,6 +39,7 @@ from uav_scenarios.errors import ScoringError
 
 __all__ = [
     "battery_from_msg",
+    "camera_frame_from_msg",
     "collision_from_msg",
     "controller_from_msg",
     "depth_metrics_from_msg",
@@ -173,6 +176,12 @@ def goal_from_msg(msg: Any) -> GoalSample:
     if hasattr(msg, "goal"):
         return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.goal), str(msg.reason))
     return GoalSample(stamp_s(msg.header.stamp), _xyz(msg.point), "")
+
+
+def camera_frame_from_msg(msg: Any, camera: str) -> CameraFrameSample:
+    """A colour ``sensor_msgs/Image`` of a watched camera -> its stamp, pixel digest (CRC-32) and noise level."""
+    rgb = image_to_rgb(msg)
+    return CameraFrameSample(stamp_s(msg.header.stamp), camera, zlib.crc32(rgb.tobytes()), noise_level(rgb))
 
 
 def fault_from_msg(msg: Any) -> FaultSample:

@@ -28,6 +28,11 @@ Publishes:
 
 Services:
     ~set_object_pose (uav_msgs/SetObjectPose): move a person or vehicle.
+    ~set_camera_fault (uav_msgs/SetCameraFault): inject a fault into a camera (off, stuck, garbage,
+        intermittent; ok clears it), from the next state's frames on; answers ACCEPTED with the simulation
+        time it applies after, or DENIED naming the known cameras or types. A faulted camera's camera_info,
+        images, points and box-only detections follow the fault; /detections/ground_truth does not
+        (uav_sim_bridge.engine, docs/sim_bridge.md "Camera faults").
 
 Parameters:
     ~config_file (str, default: the project's config/sim_bridge.yaml): node configuration.
@@ -83,7 +88,14 @@ from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnec
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState
-from uav_msgs.srv import SetObjectPose, SetObjectPoseRequest, SetObjectPoseResponse
+from uav_msgs.srv import (
+    SetCameraFault,
+    SetCameraFaultRequest,
+    SetCameraFaultResponse,
+    SetObjectPose,
+    SetObjectPoseRequest,
+    SetObjectPoseResponse,
+)
 from uav_sim_bridge.config import SimBridgeConfig, bridge_config, resolve_environment
 from uav_sim_bridge.core import visualize
 from uav_sim_bridge.core.schedule import LockstepRole, RateSchedule
@@ -91,7 +103,7 @@ from uav_sim_bridge.core.transforms import OPTICAL_FROM_FLU, RigidTransform
 from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import load_world_config
 from uav_sim_bridge.engine import BridgeEngine, CameraOutput, StepOutput
-from uav_sim_bridge.errors import SimBridgeConfigError, SimBridgeError
+from uav_sim_bridge.errors import CameraFaultError, SimBridgeConfigError, SimBridgeError
 from uav_sim_bridge.render import Renderer
 from uav_sim_bridge.ros import conversions as conv
 from uav_sim_bridge.shell.settle import Settle
@@ -233,6 +245,20 @@ class _MoveRequest:
     response: SetObjectPoseResponse | None = None
 
 
+@dataclass
+class _FaultRequest:
+    req: SetCameraFaultRequest
+    done: threading.Event
+    response: SetCameraFaultResponse | None = None
+    #: The caller gave up waiting: the loop must not apply it (its answer said it was not applied).
+    abandoned: bool = False
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+#: How long (wall seconds) ~set_camera_fault waits for the main loop (a settled lockstep loop can be slow).
+_FAULT_ANSWER_S = 30.0
+
+
 class SimBridgeNode:
     """The node (see module docstring). Create and spin it in the same thread."""
 
@@ -288,12 +314,14 @@ class SimBridgeNode:
         self.publish_pose_tf = params.publish_pose_tf
         if params.publish_camera_tf:
             self._publish_static()
-        self._requests: queue.Queue[_MoveRequest] = queue.Queue()
+        self._requests: queue.Queue[_MoveRequest | _FaultRequest] = queue.Queue()
         self._service = rospy.Service("~set_object_pose", SetObjectPose, self._on_set_object_pose)
+        self._fault_service = rospy.Service("~set_camera_fault", SetCameraFault, self._on_set_camera_fault)
         rospy.set_param("~world_hash", self.world.hash)
         rospy.set_param("~world_name", world_cfg.name)
         rospy.set_param("~world_dir", str(self.world_dir))
         self._processed_serial = 0
+        self._processed_t = 0.0  # simulation time of the last state processed
         self._terrain_schedule = RateSchedule(sl.terrain_report_rate_hz)
         self._last_heartbeat = -math.inf
         self._last_state_wall = time.monotonic()
@@ -390,12 +418,44 @@ class SimBridgeNode:
             return SetObjectPoseResponse(success=False, message="the bridge loop did not answer within 5 s")
         return item.response
 
+    def _on_set_camera_fault(self, req: SetCameraFaultRequest) -> SetCameraFaultResponse:
+        item = _FaultRequest(req, threading.Event())
+        self._requests.put(item)
+        item.done.wait(_FAULT_ANSWER_S)
+        with item.lock:
+            if item.response is None:  # too late: never applied, and the loop will not apply it now
+                item.abandoned = True
+                detail = f"the bridge loop did not take it within {_FAULT_ANSWER_S:.0f} s: not applied"
+                return SetCameraFaultResponse(result="DENIED", detail=detail, applied_s=math.nan)
+            return item.response
+
+    def _apply_camera_fault(self, item: _FaultRequest) -> None:
+        with item.lock:
+            if not item.abandoned:
+                self._apply_camera_fault_locked(item)
+        item.done.set()
+
+    def _apply_camera_fault_locked(self, item: _FaultRequest) -> None:
+        r = item.req
+        applied_s = self._processed_t  # frames of the states processed after it carry the fault
+        try:
+            self.engine.set_camera_fault(str(r.camera), str(r.type))
+        except CameraFaultError as err:
+            rospy.logerr("camera fault %s %s refused: %s", r.camera, r.type, err)
+            item.response = SetCameraFaultResponse(result="DENIED", detail=str(err), applied_s=math.nan)
+        else:
+            rospy.logwarn("camera %s: fault %s from %.2f s (simulation time)", r.camera, r.type, applied_s)
+            item.response = SetCameraFaultResponse(result="ACCEPTED", detail="", applied_s=applied_s)
+
     def _drain_requests(self) -> None:
         while True:
             try:
                 item = self._requests.get_nowait()
             except queue.Empty:
                 return
+            if isinstance(item, _FaultRequest):
+                self._apply_camera_fault(item)
+                continue
             r = item.req
             key: str | int = int(r.instance_id) if r.instance_id else str(r.name)
             try:
@@ -590,6 +650,7 @@ class SimBridgeNode:
         state = snap.state
         assert state is not None
         t = state.sim_time_s
+        self._processed_t = t
         self._update_rtf(now, t)
         self._last_state_wall = now
         # Determinism: the state's MAVLink telemetry reaches its clients before ROS time moves, and the
@@ -638,17 +699,18 @@ class SimBridgeNode:
             return every or p.get_num_connections() > 0
 
         info = conv.camera_info(out.camera, hdr)
-        # Intrinsics go out with every frame of the camera, rendered or detection-only (a consumer of the
+        # Intrinsics go out with every frame the camera delivers, rendered or detection-only (a consumer of the
         # detections, e.g. the geolocator, needs them; they cost no render), before the detections.
-        if on(pubs.color_info):
+        if out.delivered and on(pubs.color_info):
             pubs.color_info.publish(info)
-        if on(pubs.depth_info):
+        if out.delivered and on(pubs.depth_info):
             pubs.depth_info.publish(info)
         if out.detections is not None:
-            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))
+            self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))  # the scene's truth
             boxes = self.pub_boxes.get(out.camera.name)
-            if boxes is not None and on(boxes):
-                boxes.publish(conv.ground_truth_boxes(hdr, out.detections, self.classes))
+            found = out.detector_boxes  # what a detector on the delivered image finds (faults included)
+            if boxes is not None and found is not None and on(boxes):
+                boxes.publish(conv.ground_truth_boxes(hdr, found, self.classes))
         frame = out.frame
         if frame is None or out.depth_m is None:
             return  # only the detections were wanted

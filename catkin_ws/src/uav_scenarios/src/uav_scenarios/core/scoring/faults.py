@@ -2,8 +2,10 @@
 
 A fault's "what followed" is every change the run's own topics show between the fault and the next fault
 (or the end of the run): the autopilot's mode, the controller's state and its ``last_event``, the pose
-estimate's state. The tracking error is the distance between the vehicle (ground truth) and the path the
-autonomy commanded (``/autonomy/path``, a polyline in map ENU), while the controller follows it.
+estimate's state, and the frames of the cameras with scripted faults (:mod:`uav_scenarios.core.scoring.cameras`:
+stopped, resumed, frozen, noise); a camera fault also counts its camera's frames over its window. The tracking
+error is the distance between the vehicle (ground truth) and the path the autonomy commanded (``/autonomy/path``,
+a polyline in map ENU), while the controller follows it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from uav_scenarios.core.faults import camera_name
+from uav_scenarios.core.scoring.cameras import CameraWatch
 from uav_scenarios.core.scoring.types import FaultSample
 
 __all__ = ["distance_to_polyline_m", "fault_summary", "target_tracking_stats", "tracking_stats"]
@@ -23,7 +27,12 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def fault_summary(
-    faults: Sequence[FaultSample], changes: Sequence[tuple[float, str]], *, start_s: float, end_s: float
+    faults: Sequence[FaultSample],
+    changes: Sequence[tuple[float, str]],
+    *,
+    start_s: float,
+    end_s: float,
+    cameras: CameraWatch | None = None,
 ) -> list[dict[str, Any]]:
     """Each fault with what followed it.
 
@@ -32,6 +41,9 @@ def fault_summary(
         changes: ``(t_s, what)`` of every mode/state/event change of the run.
         start_s: the run's start (``run_t_s`` = ``t_s - start_s``).
         end_s: the run's end (the last fault's window ends there).
+        cameras: the watched cameras' frames: a camera fault gets ``camera``, :meth:`CameraWatch.window` of its
+            camera from the time the bridge applied it (``answered_s``; else when it was sent) to the next fault,
+            if any frame of that camera was seen at all.
 
     Returns:
         One entry per fault, in time order: ``t_s``, ``run_t_s``, ``at_s`` (when it was due), unit, type,
@@ -48,6 +60,11 @@ def fault_summary(
             for t, what in sorted(changes, key=lambda c: c[0])
             if f.t_s <= t and (t < until or (last and t <= until))
         ]
+        entry: dict[str, Any] = {}
+        cam = camera_name(f.unit)
+        if cam and cameras is not None and cam in cameras.cameras:  # (a replay without its images: no counts)
+            applied = f.answered_s if math.isfinite(f.answered_s) and f.answered_s >= f.t_s else f.t_s
+            entry["camera"] = cameras.window(cam, applied, until)
         out.append(
             {
                 "t_s": f.t_s,
@@ -62,6 +79,7 @@ def fault_summary(
                 "detail": f.detail,
                 "answered_s": f.answered_s,
                 "followed": followed,
+                **entry,
             }
         )
     return out

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from uav_scenarios.core.config import ScoringSpec
 from uav_scenarios.core.mission import CONFIRM_RADIUS_M
+from uav_scenarios.core.scoring.cameras import CameraFrameSample, CameraWatch
 from uav_scenarios.core.scoring.coco import CocoScores, ContextBands
 from uav_scenarios.core.scoring.faults import (
     distance_to_polyline_m,
@@ -205,6 +206,8 @@ class RunScorer:
     #: Scripted faults sent, and every autopilot mode / controller / estimate change (what followed them).
     _faults: list[FaultSample] = field(default_factory=list)
     _changes: list[tuple[float, str]] = field(default_factory=list)
+    #: The frames of the cameras with scripted faults (their changes go to ``_changes``).
+    _camera_watch: CameraWatch = field(default_factory=CameraWatch)
     #: The path the autonomy commands (map ENU) and the vehicle's distance from it while AUTONOMOUS.
     _path_m: npt.NDArray[np.float64] | None = None
     _tracking_errors_m: list[float] = field(default_factory=list)
@@ -295,6 +298,12 @@ class RunScorer:
         self._faults.append(fault)
         detail = f" ({fault.detail})" if fault.detail else ""
         self._events.append((fault.t_s, f"fault {fault.label}: {fault.result}{detail}"))
+
+    def add_camera_frame(self, frame: CameraFrameSample) -> None:
+        """A colour frame of a camera with a scripted fault: its stops, gaps, frozen or noise pictures are changes
+        (what followed the faults)."""
+        self._advance(frame.t_s)
+        self._changes.extend(self._camera_watch.add(frame))
 
     def add_estimate(self, pose: PoseSample) -> None:
         """A pose estimate (the autopilot's, as the autonomy used it), scored against the true trajectory."""
@@ -794,7 +803,13 @@ class RunScorer:
             "depth": self._depth_summary(),
             "moving_objects": self._trail_summary(),
             "pose_estimate": self._estimate_summary(now_s),
-            "faults": fault_summary(self._faults, self._changes, start_s=self.start_t_s, end_s=now_s),
+            "faults": fault_summary(
+                self._faults,
+                [*self._changes, *self._camera_watch.open_gaps(now_s)],
+                start_s=self.start_t_s,
+                end_s=now_s,
+                cameras=self._camera_watch,
+            ),
             "setpoint_tracking": {
                 "reference": "distance from the commanded path (/autonomy/path) while AUTONOMOUS, ground truth",
                 **tracking_stats(self._tracking_errors_m),
