@@ -139,7 +139,7 @@ class BridgeEngine:
                 )
         self._depth_rng = camera_rng(env.seed, "depth_noise")
         self._pool: ThreadPoolExecutor | None = None
-        self._delayed: list[CameraOutput] = []
+        self._delayed: list[tuple[CameraOutput, Future[EffectsResult] | None]] = []
         # Moving people and vehicles.
         self.motion: MotionPlan = plan_motion(
             world.objects, world.roads, world.terrain.bounds_m, world.config, cfg.actors
@@ -366,16 +366,17 @@ class BridgeEngine:
             out, job = self._camera(name, state, full=wanted(name), detect=name in det_cams)
             if out is not None:
                 pending.append((out, job))
+        deferred: list[tuple[CameraOutput, Future[EffectsResult]]] = []
         for out, job in pending:
             if job is None:
                 outputs.append(out)
-                continue
-            result = job.result()
-            frame = out.frame
-            assert frame is not None
-            effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
-            outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
-        outputs = self._deliver(outputs, t)
+            elif self.cfg.environment.effects_for(out.camera.name).latency_s > 0.0:
+                # a delayed camera's image is not delivered before its latency has passed: its effects finish in
+                # the effects thread meanwhile (the next cameras render), and are waited for at delivery
+                deferred.append((out, job))
+            else:
+                outputs.append(_with_effects(out, job))
+        outputs = self._deliver(outputs, deferred, t)
         reach = cfg.collision.vehicle_radius_m + 1.0
         if self._movers_near(state.position_m, t, reach) or (
             self._previous_position is not None and self._movers_near(self._previous_position, t, reach)
@@ -456,24 +457,33 @@ class BridgeEngine:
             self._pool.shutdown(wait=True)
             self._pool = None
 
-    def _deliver(self, outputs: list[CameraOutput], t_s: float) -> list[CameraOutput]:
-        """Hold back delayed camera images until their capture time plus the camera's latency."""
+    def _deliver(
+        self,
+        outputs: list[CameraOutput],
+        deferred: list[tuple[CameraOutput, Future[EffectsResult]]],
+        t_s: float,
+    ) -> list[CameraOutput]:
+        """Hold back delayed camera images until their capture time plus the camera's latency (``deferred``: those
+        whose effects are still running; they are waited for when due)."""
         ready: list[CameraOutput] = []
-        for out in outputs:
+        held: list[tuple[CameraOutput, Future[EffectsResult] | None]] = [(out, None) for out in outputs]
+        held += deferred
+        for out, job in held:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
             if latency > 0.0 and out.frame is not None:
                 if out.detections is not None:  # detections are ground truth: never delayed
                     ready.append(dataclasses.replace(out, frame=None, depth_m=None))
-                self._delayed.append(out)
+                self._delayed.append((out, job))
             else:
                 ready.append(out)
         keep = []
-        for out in self._delayed:
+        for out, job in self._delayed:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
             if out.t_capture_s + latency <= t_s + 1e-9:
-                ready.append(dataclasses.replace(out, detections=None))
+                done = out if job is None else _with_effects(out, job)
+                ready.append(dataclasses.replace(done, detections=None))
             else:
-                keep.append(out)
+                keep.append((out, job))
         self._delayed = keep
         return ready
 
@@ -519,3 +529,12 @@ class BridgeEngine:
         surface_z, iid = self.world.ground_height_at(x, y, z + _GROUND_TOLERANCE_M)
         geo = LocalProjection(home).to_geo(y, x, 0.0)
         return TerrainReport(geo.lat_deg, geo.lon_deg, home.alt_amsl_m + surface_z, z - surface_z, surface_z, iid)
+
+
+def _with_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput:
+    """``out`` with its camera effects applied (waits for the effects thread)."""
+    result = job.result()
+    frame = out.frame
+    assert frame is not None
+    effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
+    return dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain)
