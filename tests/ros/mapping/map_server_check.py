@@ -310,6 +310,40 @@ class MapServerCheck(unittest.TestCase):
         self.assertEqual(layers["observed"][roof], 1.0)
         self.assertEqual(layers["elevation_m"][cell(after, -2.9, 1.1)], 0.25)
 
+    def test_4_what_moved_away_is_cleared(self) -> None:
+        """OctoMap's probabilistic update clears a walker that left: the rays to the ground where it stood pass
+        through its voxels (full insertion, as the lockstep scenarios' `insert_mode` can be; the default
+        truncated mode clears the last `truncation_m` before each hit, docs/scenarios.md `moving_objects`)."""
+        self.call("/map_server/reset", Empty)
+        ground, rgb = scene_points()
+        ground = ground.copy()
+        ground[:, 2] = 0.1  # no roof: the ground only
+        walker = (np.abs(ground[:, 0] + 2.75) < 0.5) & (np.abs(ground[:, 1] + 2.75) < 0.5)
+        standing = ground.copy()
+        standing[walker, 2] = 1.7  # a 1 m x 1 m column (a walker seen from above: head and shoulders at 1.7 m)
+        out = self.tmp / "walker.npy"
+
+        def occupied() -> set[tuple[int, int, int]]:
+            res = self.call("/map_server/export_occupied", ExportVoxels, str(out), 0.0)
+            self.assertTrue(res.success, res.message)
+            return {tuple(c) for c in load_occupied_cells(out).cells.tolist()}
+
+        def insert(points: np.ndarray, stamp_s: float) -> None:
+            n_before = len(self.stats)
+            self.pub_cloud.publish(cloud_msg(to_optical(points), rgb, rospy.Time.from_sec(stamp_s)))
+            wait_until(lambda: len(self.stats), lambda n: n > n_before, timeout_s=15.0, describe="insert_stats")
+
+        t = SIM_START_S + 10.0
+        for k in range(3):  # it stands there for three frames
+            insert(standing, t + 0.1 * k)
+        head = (-6, -6, 3)  # the voxel [-3, -2.5) x [-3, -2.5) x [1.5, 2) of the walker's head
+        self.assertIn(head, occupied())
+        for k in range(3, 13):  # it walked away: ten frames see the ground where it stood
+            insert(ground, t + 0.1 * k)
+        now = occupied()
+        self.assertNotIn(head, now, "the walker's voxels are still occupied after it left (a ghost)")
+        self.assertIn((-6, -6, 0), now)  # the ground it stood on stays
+
 
 if __name__ == "__main__":
     rostest.rosrun("uav_rostests", "map_server_check", MapServerCheck)

@@ -604,3 +604,29 @@ def test_latency_and_dropped_frames_in_the_engine(world: World, renderer: Render
     assert dets == 40  # ground truth is never late nor lost
     assert all(t_out == pytest.approx(t_cap + 0.2) for t_out, t_cap in images)
     assert 15 < len(images) < 36  # ~30 % dropped (seeded); the last 0.2 s still in flight
+
+
+def test_a_delayed_camera_delivers_the_same_effected_image_later(world: World, renderer: Renderer) -> None:
+    # a delayed camera's effects finish in the effects thread while the next steps run (they are waited for at
+    # delivery): the image is the one an undelayed camera delivers at capture time, bit for bit
+    def frames(latency_s: float) -> dict[float, np.ndarray]:
+        env = _env("clean", cameras={"nadir": {"latency_s": latency_s, "noise": {}, "jpeg_quality": 70}})
+        cams = {"nadir": replace(SimBridgeConfig().cameras["nadir"], rate_hz=10.0, width=160, height=120)}
+        dets = replace(SimBridgeConfig().detections, cameras=("nadir",))
+        eng = BridgeEngine(replace(SimBridgeConfig(), cameras=cams, environment=env, detections=dets), world, renderer)
+        got = {}
+        try:
+            for k in range(12):
+                t = round(0.1 * k, 6)
+                for c in eng.step(_state(t, (3.0 * k, 0.0, 120.0)), home=None, wanted=lambda _n: True).cameras:
+                    if c.frame is not None:
+                        got[round(c.t_capture_s, 6)] = c.frame.color_rgb.copy()
+        finally:
+            eng.close()
+        return got
+
+    now, later = frames(0.0), frames(0.25)
+    assert len(later) == 12 - 3  # the last 0.25 s are still in flight
+    for t_capture, img in later.items():
+        assert np.array_equal(img, now[t_capture])
+    assert not np.array_equal(later[0.0], later[0.5])  # and they are images of different places

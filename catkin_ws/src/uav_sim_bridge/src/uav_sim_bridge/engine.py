@@ -402,12 +402,12 @@ class BridgeEngine:
         for out, job in pending:
             if job is None:
                 outputs.append(out)
-                continue
-            result = job.result()
-            frame = out.frame
-            assert frame is not None
-            effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
-            outputs.append(dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain))
+            elif self.cfg.environment.effects_for(out.camera.name).latency_s > 0.0:
+                # a delayed camera's image is not delivered before its latency has passed: its effects finish in
+                # the effects thread meanwhile (the next cameras render) and its colour waits for them when read
+                outputs.append(_pending_effects(out, job))
+            else:
+                outputs.append(_with_effects(out, job))
         outputs = self._deliver([f for f in map(self._faulted, outputs) if f is not None], t)
         reach = cfg.collision.vehicle_radius_m + 1.0
         if self._movers_near(state.position_m, t, reach) or (
@@ -526,7 +526,8 @@ class BridgeEngine:
             self._pool = None
 
     def _deliver(self, outputs: list[CameraOutput], t_s: float) -> list[CameraOutput]:
-        """Hold back delayed camera images until their capture time plus the camera's latency."""
+        """Hold back delayed camera images until their capture time plus the camera's latency (an image whose
+        effects still run in the effects thread gets its exposure and gain from them then)."""
         ready: list[CameraOutput] = []
         for out in outputs:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
@@ -540,6 +541,9 @@ class BridgeEngine:
         for out in self._delayed:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
             if out.t_capture_s + latency <= t_s + 1e-9:
+                if isinstance(out.frame, _PendingFrame):
+                    result = out.frame.job.result()
+                    out = dataclasses.replace(out, exposure_s=result.exposure_s, gain=result.gain)
                 ready.append(dataclasses.replace(out, detections=None))
             else:
                 keep.append(out)
@@ -588,3 +592,30 @@ class BridgeEngine:
         surface_z, iid = self.world.ground_height_at(x, y, z + _GROUND_TOLERANCE_M)
         geo = LocalProjection(home).to_geo(y, x, 0.0)
         return TerrainReport(geo.lat_deg, geo.lon_deg, home.alt_amsl_m + surface_z, z - surface_z, surface_z, iid)
+
+
+def _with_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput:
+    """``out`` with its camera effects applied (waits for the effects thread)."""
+    result = job.result()
+    frame = out.frame
+    assert frame is not None
+    effected = RenderedFrame(result.color_rgb, frame.depth_m, frame.instance_id)
+    return dataclasses.replace(out, frame=effected, exposure_s=result.exposure_s, gain=result.gain)
+
+
+class _PendingFrame(RenderedFrame):
+    """A delayed camera's frame whose effects still run in the effects thread: its colour waits for them when
+    first read (a camera fault may keep it, a stuck camera show it again); ``job`` gives exposure and gain."""
+
+    __slots__ = ("job",)
+
+    def __init__(self, frame: RenderedFrame, job: Future[EffectsResult]) -> None:
+        super().__init__(None, frame.depth_m, frame.instance_id, shade=lambda: job.result().color_rgb)
+        self.job = job
+
+
+def _pending_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput:
+    """``out`` with a frame whose colour is the effects' result, waited for when read (see :class:`_PendingFrame`)."""
+    frame = out.frame
+    assert frame is not None
+    return dataclasses.replace(out, frame=_PendingFrame(frame, job))

@@ -253,8 +253,12 @@ class CameraEffects:
     _vignette: FloatArray | None = field(default=None, init=False)
     _bank: FloatArray | None = field(default=None, init=False)
     _grid: tuple[FloatArray, FloatArray] | None = field(default=None, init=False)
+    _drop_rng: np.random.Generator | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
+        # drops are decided before a frame renders, possibly while the previous frame's effects still run in the
+        # effects thread: their own stream (spawned, so ``rng``'s draws are unchanged) keeps both deterministic
+        self._drop_rng = self.rng.spawn(1)[0]
         e = self.cfg.exposure
         if e is not None:
             self._exposure = _ExposureState(e.exposure_s, 1.0)
@@ -275,7 +279,8 @@ class CameraEffects:
     # ---------------------------------------------------------------------------------------- per frame
     def drop(self) -> bool:
         """Whether this frame is lost (drawn every frame, before rendering, whatever the answer)."""
-        u = float(self.rng.random())
+        assert self._drop_rng is not None
+        u = float(self._drop_rng.random())
         return u < self.cfg.drop_probability
 
     def apply(
