@@ -7,7 +7,8 @@ must give the pure-Python core's output bit for bit; ``test_sitl_compiled_core.p
 twice, once with ``SITL_PURE_PYTHON=1``. It drives the vehicle through commands and setpoints as
 clients send them: takeoff, offboard position / velocity / attitude, DO_ORBIT, a mission,
 the sticks, RTL (PX4, noisy estimator with a heading error, GPS stuck / intermittent / garbage
-for a few seconds each during the mission, compass and baro off / stuck / garbage / intermittent); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
+for a few seconds each during the mission, compass and baro off / stuck / garbage /
+intermittent); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
 """
 
 from __future__ import annotations

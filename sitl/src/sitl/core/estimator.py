@@ -55,18 +55,18 @@ from sitl.core.faults import (
     BARO_NOISE_M,
     EARTH_FIELD_NED_GAUSS,
     GARBAGE_ALT_RANGE_M,
-    GYRO_YAW_DRIFT_SD_RADPS,
-    HGT_FUSION_TIMEOUT_S,
-    MAG_FUSION_TIME_CONSTANT_S,
-    MAG_HEADING_GATE_RAD,
-    YAW_GNSS_ALIGN_MIN_SPEED_MPS,
-    YAW_GNSS_ALIGN_TIME_CONSTANT_S,
     GPS_FUSION_TIME_CONSTANT_S,
     GPS_POS_GATE_SD,
     GPS_POS_NOISE_MIN_M,
+    GYRO_YAW_DRIFT_SD_RADPS,
+    HGT_FUSION_TIMEOUT_S,
     INTERMITTENT_FIX_MEAN_S,
     INTERMITTENT_GAP_MEAN_S,
+    MAG_FUSION_TIME_CONSTANT_S,
+    MAG_HEADING_GATE_RAD,
     NO_AID_TIMEOUT_S,
+    YAW_GNSS_ALIGN_MIN_SPEED_MPS,
+    YAW_GNSS_ALIGN_TIME_CONSTANT_S,
     FailureType,
 )
 from sitl.core.state import LocalState, VehicleState
@@ -182,6 +182,9 @@ class Estimator:
         self._stuck_fused_t = 0.0
         self._in_gap = False
         self._phase_until = 0.0
+        self._init_sensor_faults(noise)
+
+    def _init_sensor_faults(self, noise: NoiseModel | None) -> None:
         #: The GNSS height's error (per-axis sd, m) that the height shows once the baro is lost.
         self.gnss_height_sd_m = max(self.v_acc_m, 1.5 * self.h_acc_m)
         self._gnss_height_corr_s = noise.noise_correlation_s if noise is not None else _TRUTH_CORRELATION_S
@@ -444,47 +447,11 @@ class Estimator:
 
     def _mag_update(self, truth: VehicleState, est: LocalState, dt: float) -> float:
         """The compass model: returns the change to the estimate's heading (rad)."""
-        t_s = truth.t_s
         fault = self.mag_fault
         compass = self.heading_error_rad  # the working compass's own heading error (0 with the truth)
         if fault != self._mag_seen:
-            self._mag_seen = fault
-            self._mag_said = False
-            self.mag_report_body = None
-            self._mag_in_gap = False
-            self._mag_phase_until = t_s
-            if fault:
-                if not self._mag_on:  # take over from the compass's present error
-                    self._mag_err = compass
-                    self._mag_on = True
-                self._mag_drift = float(self._mag_rng.normal(0.0, GYRO_YAW_DRIFT_SD_RADPS))
-                if fault == _STUCK:  # the field it froze at says this heading
-                    self._mag_stuck_yaw = truth.euler_rad[2] + self._mag_err
-                    self.mag_report_body = field_in_body(est.full.q_wxyz)
-        reporting = fused = True
-        if fault == _OFF:
-            reporting = fused = False
-        elif fault == _GARBAGE:
-            r = self._mag_rng
-            x = float(r.uniform(0.65, 2.0))  # at least 0.65 gauss on one axis: beyond any field + the gate
-            self.mag_report_body = (x if r.random() < 0.5 else -x, float(r.uniform(-2.0, 2.0)), float(r.uniform(-2.0, 2.0)))
-            fused = False
-        elif fault == _STUCK:
-            innovation = _wrap(self._mag_stuck_yaw - (truth.euler_rad[2] + self._mag_err))
-            fused = abs(innovation) <= MAG_HEADING_GATE_RAD
-            if fused:
-                self._mag_err += min(1.0, dt / MAG_FUSION_TIME_CONSTANT_S) * innovation
-            else:
-                self.mag_rejected_samples += 1
-        elif fault == _INTERMITTENT:
-            if t_s >= self._mag_phase_until:
-                self._mag_in_gap = not self._mag_in_gap
-                mean = INTERMITTENT_GAP_MEAN_S if self._mag_in_gap else INTERMITTENT_FIX_MEAN_S
-                self._mag_phase_until = t_s + float(self._mag_rng.exponential(mean))
-                if self._mag_in_gap:
-                    self.mag_gaps += 1
-            if self._mag_in_gap:
-                reporting = fused = False
+            self._mag_start(fault, truth, est, compass)
+        reporting, fused = self._mag_sample(fault, truth, dt)
         if not fused:  # the gyro alone; GNSS velocity aligns the heading while the vehicle moves
             self._mag_err += self._mag_drift * dt
             vn, ve, _ = truth.vel_ned_mps
@@ -503,59 +470,60 @@ class Estimator:
             return 0.0
         return self._mag_err - compass
 
+    def _mag_start(self, fault: int, truth: VehicleState, est: LocalState, compass: float) -> None:
+        """A new compass failure (or OK) takes over from the present state."""
+        self._mag_seen = fault
+        self._mag_said = False
+        self.mag_report_body = None
+        self._mag_in_gap = False
+        self._mag_phase_until = truth.t_s
+        if not fault:
+            return
+        if not self._mag_on:  # take over from the compass's present error
+            self._mag_err = compass
+            self._mag_on = True
+        self._mag_drift = float(self._mag_rng.normal(0.0, GYRO_YAW_DRIFT_SD_RADPS))
+        if fault == _STUCK:  # the field it froze at says this heading
+            self._mag_stuck_yaw = truth.euler_rad[2] + self._mag_err
+            self.mag_report_body = field_in_body(est.full.q_wxyz)
+
+    def _mag_sample(self, fault: int, truth: VehicleState, dt: float) -> tuple[bool, bool]:
+        """What the compass reports this step and whether EKF2 fuses it: ``(reporting, fused)``."""
+        if fault == _OFF:
+            return False, False
+        if fault == _GARBAGE:
+            r = self._mag_rng
+            x = float(r.uniform(0.65, 2.0))  # at least 0.65 gauss on one axis: beyond any field + the gate
+            sign = 1.0 if r.random() < 0.5 else -1.0
+            self.mag_report_body = (sign * x, float(r.uniform(-2.0, 2.0)), float(r.uniform(-2.0, 2.0)))
+            return True, False
+        if fault == _STUCK:
+            innovation = _wrap(self._mag_stuck_yaw - (truth.euler_rad[2] + self._mag_err))
+            if abs(innovation) > MAG_HEADING_GATE_RAD:
+                self.mag_rejected_samples += 1
+                return True, False
+            self._mag_err += min(1.0, dt / MAG_FUSION_TIME_CONSTANT_S) * innovation
+            return True, True
+        if fault == _INTERMITTENT:
+            if truth.t_s >= self._mag_phase_until:
+                self._mag_in_gap = not self._mag_in_gap
+                mean = INTERMITTENT_GAP_MEAN_S if self._mag_in_gap else INTERMITTENT_FIX_MEAN_S
+                self._mag_phase_until = truth.t_s + float(self._mag_rng.exponential(mean))
+                if self._mag_in_gap:
+                    self.mag_gaps += 1
+            if self._mag_in_gap:
+                return False, False
+        return True, True
+
     def _baro_update(self, t_s: float, est: LocalState, dt: float) -> float:
         """The barometer model: returns the change to the estimate's NED down position (m)."""
         fault = self.baro_fault
         d0 = est.pos_ned_m[2]  # the height with the baro fused as the reference
         if fault != self._baro_seen:
-            self._baro_seen = fault
-            self._baro_said = False
-            self._baro_latched = False
-            self._baro_rejected_since = None
-            self.baro_report_alt_m = None
-            self._baro_in_gap = False
-            self._baro_phase_until = t_s
-            if not fault:  # baro fusion restarts as the height reference: EKF2 resets the height to it
-                self._baro_on = False
-                self._baro_fused = True
-                self.baro_reporting = True
-                self._baro_pull = self._hgt_err = 0.0
+            self._baro_start(fault, t_s, est)
+            if not fault:
                 return 0.0
-            self._baro_on = True
-            if fault == _STUCK:
-                self._baro_stuck_d = d0  # the baro's own reading: the height it fused until now
-                self.baro_report_alt_m = est.full.alt_amsl_m
-        reporting = fused = True
-        pull_to = 0.0
-        if fault == _OFF:
-            reporting = fused = False
-        elif fault == _GARBAGE:
-            r = self._baro_rng
-            off = float(r.uniform(2.0 * self.baro_gate_m, 5000.0))  # always beyond the gate
-            self.baro_report_alt_m = est.full.alt_amsl_m + (off if r.random() < 0.5 else -off)
-            fused = False
-        elif fault == _STUCK:
-            innovation = self._baro_stuck_d - (d0 + self._baro_pull + self._hgt_err)
-            fused = not self._baro_latched and abs(innovation) <= self.baro_gate_m
-            if fused:
-                self._baro_rejected_since = None
-                pull_to = self.baro_weight * (self._baro_stuck_d - d0)
-            else:
-                self.baro_rejected_samples += 1
-                if self._baro_rejected_since is None:
-                    self._baro_rejected_since = t_s
-                elif not self._baro_latched and t_s - self._baro_rejected_since >= HGT_FUSION_TIMEOUT_S:
-                    self._baro_latched = True  # EKF2: "stopping baro height fusion, fusion failing"; baro_fault
-                    self.messages.append("EKF2: baro fusion failing, height from GNSS")
-        elif fault == _INTERMITTENT:
-            if t_s >= self._baro_phase_until:
-                self._baro_in_gap = not self._baro_in_gap
-                mean = INTERMITTENT_GAP_MEAN_S if self._baro_in_gap else INTERMITTENT_FIX_MEAN_S
-                self._baro_phase_until = t_s + float(self._baro_rng.exponential(mean))
-                if self._baro_in_gap:
-                    self.baro_gaps += 1
-            if self._baro_in_gap:
-                reporting = fused = False
+        reporting, fused, pull_to = self._baro_sample(fault, t_s, est, d0)
         k = min(1.0, dt / GPS_FUSION_TIME_CONSTANT_S)
         self._baro_pull += k * (pull_to - self._baro_pull)
         if fused:  # the baro holds the height again
@@ -572,6 +540,58 @@ class Estimator:
         self.baro_reporting = reporting
         self._baro_fused = fused
         return self._baro_pull + self._hgt_err
+
+    def _baro_start(self, fault: int, t_s: float, est: LocalState) -> None:
+        """A new baro failure (or OK) takes over from the present state."""
+        self._baro_seen = fault
+        self._baro_said = False
+        self._baro_latched = False
+        self._baro_rejected_since = None
+        self.baro_report_alt_m = None
+        self._baro_in_gap = False
+        self._baro_phase_until = t_s
+        if not fault:  # baro fusion restarts as the height reference: EKF2 resets the height to it
+            self._baro_on = False
+            self._baro_fused = True
+            self.baro_reporting = True
+            self._baro_pull = self._hgt_err = 0.0
+            return
+        self._baro_on = True
+        if fault == _STUCK:
+            self._baro_stuck_d = est.pos_ned_m[2]  # the baro's own reading: the height it fused until now
+            self.baro_report_alt_m = est.full.alt_amsl_m
+
+    def _baro_sample(self, fault: int, t_s: float, est: LocalState, d0: float) -> tuple[bool, bool, float]:
+        """What the baro reports this step, whether EKF2 fuses it, and how far it pulls the height (down, m)."""
+        if fault == _OFF:
+            return False, False, 0.0
+        if fault == _GARBAGE:
+            r = self._baro_rng
+            off = float(r.uniform(2.0 * self.baro_gate_m, 5000.0))  # always beyond the gate
+            self.baro_report_alt_m = est.full.alt_amsl_m + (off if r.random() < 0.5 else -off)
+            return True, False, 0.0
+        if fault == _STUCK:
+            innovation = self._baro_stuck_d - (d0 + self._baro_pull + self._hgt_err)
+            if not self._baro_latched and abs(innovation) <= self.baro_gate_m:
+                self._baro_rejected_since = None
+                return True, True, self.baro_weight * (self._baro_stuck_d - d0)
+            self.baro_rejected_samples += 1
+            if self._baro_rejected_since is None:
+                self._baro_rejected_since = t_s
+            elif not self._baro_latched and t_s - self._baro_rejected_since >= HGT_FUSION_TIMEOUT_S:
+                self._baro_latched = True  # EKF2: "stopping baro height fusion, fusion failing"; baro_fault
+                self.messages.append("EKF2: baro fusion failing, height from GNSS")
+            return True, False, 0.0
+        if fault == _INTERMITTENT:
+            if t_s >= self._baro_phase_until:
+                self._baro_in_gap = not self._baro_in_gap
+                mean = INTERMITTENT_GAP_MEAN_S if self._baro_in_gap else INTERMITTENT_FIX_MEAN_S
+                self._baro_phase_until = t_s + float(self._baro_rng.exponential(mean))
+                if self._baro_in_gap:
+                    self.baro_gaps += 1
+            if self._baro_in_gap:
+                return False, False, 0.0
+        return True, True, 0.0
 
     def _step_noise(self, dt: float, nm: NoiseModel) -> None:
         if dt <= 0.0:

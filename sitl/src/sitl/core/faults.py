@@ -56,22 +56,22 @@ __all__ = [
     "BARO_NOISE_M",
     "EARTH_FIELD_NED_GAUSS",
     "GARBAGE_ALT_RANGE_M",
+    "GPS_FUSION_TIME_CONSTANT_S",
+    "GPS_POS_GATE_SD",
+    "GPS_POS_NOISE_MIN_M",
     "GYRO_YAW_DRIFT_SD_RADPS",
     "HGT_FUSION_TIMEOUT_S",
+    "INTERMITTENT_FIX_MEAN_S",
+    "INTERMITTENT_GAP_MEAN_S",
     "MAG_FUSION_TIME_CONSTANT_S",
     "MAG_GATE_SD",
     "MAG_HEADING_GATE_RAD",
     "MAG_NOISE_GAUSS",
-    "YAW_GNSS_ALIGN_MIN_SPEED_MPS",
-    "YAW_GNSS_ALIGN_TIME_CONSTANT_S",
-    "GPS_FUSION_TIME_CONSTANT_S",
-    "GPS_POS_GATE_SD",
-    "GPS_POS_NOISE_MIN_M",
-    "INTERMITTENT_FIX_MEAN_S",
-    "INTERMITTENT_GAP_MEAN_S",
     "MOTOR_COUNT",
     "MOTOR_WRONG_FACTOR",
     "NO_AID_TIMEOUT_S",
+    "YAW_GNSS_ALIGN_MIN_SPEED_MPS",
+    "YAW_GNSS_ALIGN_TIME_CONSTANT_S",
     "FailureType",
     "FailureUnit",
     "FaultState",
@@ -229,6 +229,16 @@ class FaultState:
                 out.append(f"motor {i + 1} wrong ({f:g})")
         return out
 
+    def _sensor(self, unit: FailureUnit, failure_type: FailureType, instance: int) -> _Result | None:
+        """A compass or baro failure; a refusal if ``instance`` is not this vehicle's one sensor."""
+        if instance not in (0, 1):  # one compass and one barometer (PX4 numbers instances from 1; 0 = all)
+            return _Result(InjectOutcome.INVALID, f"Failure injection: no {unit.name.lower()} {instance} (1, 0 all)")
+        if unit is FailureUnit.SENSOR_MAG:
+            self.mag = failure_type
+        else:
+            self.baro = failure_type
+        return None
+
     def inject(self, unit: int, failure_type: int, instance: int) -> _Result:
         """Apply one MAV_CMD_INJECT_FAILURE (already allowed by SYS_FAILURE_EN)."""
         try:
@@ -257,12 +267,9 @@ class FaultState:
         elif u is FailureUnit.SENSOR_GPS:
             self.gps = t
         elif u in (FailureUnit.SENSOR_MAG, FailureUnit.SENSOR_BARO):
-            if instance not in (0, 1):  # one compass and one barometer (PX4 numbers instances from 1; 0 = all)
-                return _Result(InjectOutcome.INVALID, f"Failure injection: no {u.name.lower()} {instance} (1, 0 all)")
-            if u is FailureUnit.SENSOR_MAG:
-                self.mag = t
-            else:
-                self.baro = t
+            refused = self._sensor(u, t, instance)
+            if refused is not None:
+                return refused
         else:
             self.battery_off = t is FailureType.OFF
         self.injected += 1
