@@ -403,3 +403,20 @@ def test_sensor_faults_need_sys_failure_en_and_a_real_instance() -> None:
     assert any("no sensor_mag 2" in t for t in rig.gcs.texts())
     assert rig.cmd(INJECT, MAG, mavlink.FAILURE_TYPE_WRONG, 0).result == mavlink.MAV_RESULT_UNSUPPORTED
     assert rig.cmd(INJECT, BARO, mavlink.FAILURE_TYPE_SLOW, 0).result == mavlink.MAV_RESULT_UNSUPPORTED
+
+
+def test_a_failed_compass_or_baro_refuses_arming_until_cleared() -> None:
+    rig = Rig(**{"params.defaults": {"SYS_FAILURE_EN": 1}})
+    arm = (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    for unit, text in ((BARO, "barometer 0 failed"), (MAG, "compass 0 failed")):
+        assert rig.cmd(INJECT, unit, mavlink.FAILURE_TYPE_STUCK, 0).result == mavlink.MAV_RESULT_ACCEPTED
+        rig.step()
+        assert not sys_status_bits(rig)[2] & mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        assert rig.cmd(*arm).result == mavlink.MAV_RESULT_DENIED
+        assert any(text in t for t in rig.gcs.texts())
+        assert not rig.v.autopilot.armed
+        assert rig.cmd(INJECT, unit, mavlink.FAILURE_TYPE_OK, 0).result == mavlink.MAV_RESULT_ACCEPTED
+        rig.step()
+    assert sys_status_bits(rig)[2] & mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    assert rig.cmd(*arm).result == mavlink.MAV_RESULT_ACCEPTED
+    assert rig.v.autopilot.armed
