@@ -18,6 +18,7 @@ from sitl.core.battery import BatteryModel, BatteryReading, BatterySpec
 from sitl.core.control import Mixer
 from sitl.core.estimator import Estimator
 from sitl.core.params import ParamTable
+from sitl.core.protocol import MavSeverity
 from sitl.core.state import LocalState, VehicleState
 from sitl.core.wind import WindModel, WindSpec
 from sitl.fdm import JsbsimQuad
@@ -124,8 +125,15 @@ class Vehicle:
         if self.steps % divider == 0:
             if self.wind is not None and self.steps:
                 self._update_wind()
-            self.estimator.gps_fault = int(faults.gps)
-            self.est = self.estimator.update(self.truth(), self.pos_ned_truth_m)
+            estimator = self.estimator
+            estimator.gps_fault = int(faults.gps)
+            estimator.mag_fault = int(faults.mag)
+            estimator.baro_fault = int(faults.baro)
+            self.est = estimator.update(self.truth(), self.pos_ned_truth_m)
+            if estimator.messages:  # EKF2 stopped fusing a sensor: say so (PX4 reports it as a warning)
+                for text in estimator.messages:
+                    ap.say(MavSeverity.WARNING, text)
+                estimator.messages.clear()
             soc = 0.0 if faults.battery_off else battery.soc  # PX4's battery simulator: forced empty
             ap.outer_update(self.t_s, wall_s, self.est, soc, battery.terminal_voltage_v)
         q, rates = fdm.attitude_and_rates()

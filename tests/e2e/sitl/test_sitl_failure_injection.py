@@ -1,7 +1,8 @@
-"""Acceptance: MAVSDK's native ``failure`` plugin injects a GPS failure into a hovering ``uav-sitl`` in wind.
+"""Acceptance: MAVSDK's ``failure`` plugin injects compass, baro and GPS failures into a hovering ``uav-sitl`` in wind.
 
-As with PX4: refused while SYS_FAILURE_EN is 0, an unmodelled failure is UNSUPPORTED; a stuck GPS while
-hovering passes EKF2's innovation gate and changes nothing (GPS_RAW_INT frozen); GPS off makes the
+As with PX4: refused while SYS_FAILURE_EN is 0, an unmodelled failure is UNSUPPORTED; compass and baro off leave
+the heading to the gyro and the height to the GNSS, the vehicle holds (MAVSDK: magnetometer unhealthy); a stuck
+GPS while hovering passes EKF2's innovation gate and changes nothing (GPS_RAW_INT frozen); GPS off makes the
 position estimate invalid after EKF2_NOAID_TOUT, the failsafe descends (reported as LAND) without position
 control, so the wind carries the vehicle away while it lands, and it disarms.
 """
@@ -60,6 +61,23 @@ async def gps_off_in_flight(api_port: int, log: list[str]) -> dict[str, Any]:
         before = (await tel.position_velocity_ned()).position
         log.append(f"holding at N{before.north_m:.2f} E{before.east_m:.2f} D{before.down_m:.2f} in 6 m/s wind")
         assert math.hypot(before.north_m, before.east_m) < 2.0
+
+        # compass and baro off: EKF2 falls back to the gyro heading and the GNSS height, no failsafe
+        await failure.inject(FailureUnit.SENSOR_MAG, FailureType.OFF, 0)
+        await failure.inject(FailureUnit.SENSOR_BARO, FailureType.OFF, 0)
+        await wait_for(tel.health, lambda h: not h.is_magnetometer_calibration_ok, "compass unhealthy", 10)
+        await asyncio.sleep(2.0)  # 10 simulated seconds
+        health = await tel.health()
+        assert health.is_local_position_ok
+        assert health.is_global_position_ok
+        assert await tel.flight_mode() == FlightMode.HOLD
+        held = (await tel.position_velocity_ned()).position
+        assert math.hypot(held.north_m - before.north_m, held.east_m - before.east_m) < 2.0
+        assert abs(held.down_m + 15.0) < 3.0, "the GNSS height holds it at the takeoff altitude"
+        await failure.inject(FailureUnit.SENSOR_MAG, FailureType.OK, 0)
+        await failure.inject(FailureUnit.SENSOR_BARO, FailureType.OK, 0)
+        await wait_for(tel.health, lambda h: h.is_magnetometer_calibration_ok, "compass healthy again", 10)
+        log.append(f"compass and baro off 10 s: still holding (D{held.down_m:.2f}), cleared")
 
         # a stuck receiver while hovering: EKF2's innovation gate accepts the frozen fix, nothing to notice
         await failure.inject(FailureUnit.SENSOR_GPS, FailureType.STUCK, 0)

@@ -7,7 +7,8 @@ must give the pure-Python core's output bit for bit; ``test_sitl_compiled_core.p
 twice, once with ``SITL_PURE_PYTHON=1``. It drives the vehicle through commands and setpoints as
 clients send them: takeoff, offboard position / velocity / attitude, DO_ORBIT, a mission,
 the sticks, RTL (PX4, noisy estimator with a heading error, GPS stuck / intermittent / garbage
-for a few seconds each during the mission); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
+for a few seconds each during the mission, compass and baro off / stuck / garbage /
+intermittent); GUIDED takeoff, position targets, AUTO and RTL (ArduPilot).
 """
 
 from __future__ import annotations
@@ -139,12 +140,17 @@ def fly_px4(f: Flight) -> None:
     f.run(10.0)
     f.mission([(50.0, 0.0), (50.0, 40.0), (0.0, 40.0)], home_item=False)
     f.cmd(M.MAV_CMD_MISSION_START, 0, 0)
-    gps = M.FAILURE_UNIT_SENSOR_GPS
-    faults = {10: M.FAILURE_TYPE_STUCK, 14: M.FAILURE_TYPE_OK, 18: M.FAILURE_TYPE_INTERMITTENT,
-              24: M.FAILURE_TYPE_GARBAGE, 26: M.FAILURE_TYPE_OK}  # fmt: skip
+    gps, mag, baro = M.FAILURE_UNIT_SENSOR_GPS, M.FAILURE_UNIT_SENSOR_MAG, M.FAILURE_UNIT_SENSOR_BARO
+    faults = {10: [(gps, M.FAILURE_TYPE_STUCK)], 12: [(mag, M.FAILURE_TYPE_STUCK), (baro, M.FAILURE_TYPE_INTERMITTENT)],
+              14: [(gps, M.FAILURE_TYPE_OK)], 16: [(mag, M.FAILURE_TYPE_GARBAGE)],
+              18: [(gps, M.FAILURE_TYPE_INTERMITTENT), (baro, M.FAILURE_TYPE_STUCK)],
+              21: [(mag, M.FAILURE_TYPE_INTERMITTENT)], 24: [(gps, M.FAILURE_TYPE_GARBAGE), (baro, M.FAILURE_TYPE_OFF)],
+              26: [(gps, M.FAILURE_TYPE_OK)], 28: [(mag, M.FAILURE_TYPE_OFF)],
+              32: [(mag, M.FAILURE_TYPE_OK), (baro, M.FAILURE_TYPE_OK)]}  # fmt: skip
     for k in range(40):
-        if k in faults:  # short GPS failures during the mission (each shorter than EKF2_NOAID_TOUT)
-            f.cmd(M.MAV_CMD_INJECT_FAILURE, gps, faults[k], 0)
+        # short GPS failures during the mission (each shorter than EKF2_NOAID_TOUT), compass and baro failures
+        for unit, kind in faults.get(k, []):
+            f.cmd(M.MAV_CMD_INJECT_FAILURE, unit, kind, 0)
         f.heartbeat()
         f.run(1.0)
     for k in range(60):  # POSCTL on the sticks

@@ -41,7 +41,7 @@ def test_failure_injection_is_refused_while_sys_failure_en_is_0() -> None:
     ("unit", "ftype", "instance", "result"),
     [
         (mavlink.FAILURE_UNIT_SENSOR_GYRO, mavlink.FAILURE_TYPE_OFF, 0, mavlink.MAV_RESULT_UNSUPPORTED),
-        (mavlink.FAILURE_UNIT_SENSOR_BARO, mavlink.FAILURE_TYPE_STUCK, 0, mavlink.MAV_RESULT_UNSUPPORTED),
+        (mavlink.FAILURE_UNIT_SENSOR_BARO, mavlink.FAILURE_TYPE_WRONG, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_SLOW, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_WRONG, 0, mavlink.MAV_RESULT_UNSUPPORTED),
         (mavlink.FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, mavlink.FAILURE_TYPE_OFF, 0, mavlink.MAV_RESULT_UNSUPPORTED),

@@ -32,7 +32,7 @@ from sitl.core.control import (
     quat_from_yaw,
 )
 from sitl.core.failsafe import FailsafeEvent, FailsafeInputs, FailsafeKind, FailsafeMonitor
-from sitl.core.faults import FaultState, InjectOutcome
+from sitl.core.faults import FailureType, FaultState, InjectOutcome
 from sitl.core.geofence import FenceStore
 from sitl.core.landing import LandDetector
 from sitl.core.mission import MissionItem, MissionStore
@@ -334,6 +334,10 @@ class Autopilot:
             return "no GPS position"
         if not self.landed:
             return "not landed"
+        faults = self.faults
+        if faults.mag is not FailureType.OK or faults.baro is not FailureType.OK:
+            # PX4's preflight sensor checks refuse a compass or baro that is silent, stale or implausible
+            return "compass 0 failed" if faults.mag is not FailureType.OK else "barometer 0 failed"
         if self.battery_remaining <= s.battery_critical_remaining:
             return f"battery critical ({100 * self.battery_remaining:.0f}%)"
         reason = check_arm(self.mode, self.mode_context())

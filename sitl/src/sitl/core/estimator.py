@@ -18,6 +18,29 @@ drops the fix in and out. All randomness comes from ``numpy.random.Generator``\\
 seeded from the config: the noise of the original model from ``seed`` itself
 (its draws are unchanged by the newer terms), the heading error and the faults
 from independent streams spawned from the same seed.
+
+Injected compass and barometer failures (:attr:`Estimator.mag_fault`, :attr:`Estimator.baro_fault`) change
+what those sensors report (:attr:`Estimator.mag_report_body`, :attr:`Estimator.baro_report_alt_m`, and
+whether they report at all) and the estimate as EKF2 would on a multicopter with one of each and a good GPS:
+
+* Baro: while EKF2 fuses it (the height reference, ``EKF2_HGT_REF`` = baro) the height is the noise model's.
+  Without it (OFF, a gap of INTERMITTENT, GARBAGE or a STUCK reading outside the innovation gate of
+  ``EKF2_BARO_GATE`` x ``EKF2_BARO_NOISE`` = 17.5 m) the height comes from the GNSS alone: a Gauss-Markov
+  error of the GNSS height's standard deviation (:attr:`Estimator.gnss_height_sd_m`, 1.5 times the
+  horizontal) grows from zero over the noise model's correlation time. A STUCK reading inside the gate is
+  blended in with its weight against the GNSS height's (1 / 3.5^2 against 1 / sd^2), so a climb or descent
+  drags the estimate a little towards the frozen height until the innovation leaves the gate; rejected for
+  ``hgt_fusion_timeout_max`` (5 s) EKF2 stops baro fusion for good (baro_fault) until the fault is cleared.
+* Compass: while EKF2 fuses it the heading error is the compass's (the noise model's heading bias and
+  wander). Without it (OFF, a gap, GARBAGE, or a STUCK field whose heading innovation leaves the
+  ``EKF2_MAG_GATE`` x ``EKF2_MAG_NOISE`` gate, about 40 degrees) the heading integrates the gyro: its error
+  drifts at a residual gyro bias drawn once per failure; moving at 1 m/s or more, GNSS velocity makes
+  the heading observable (EKF2's fusion and its EKF-GSF yaw estimator) and the error decays over 10 s. A
+  STUCK field inside the gate pulls the heading towards the frozen one over about 2 s: a slow yaw is
+  followed by the estimate only partly, a fast one is rejected. A compass that comes back pulls the
+  heading back to its own error over the same 2 s.
+
+Both draw from their own spawned streams, so they do not change the other draws.
 """
 
 from __future__ import annotations
@@ -28,25 +51,36 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.core.faults import (
+    BARO_GATE_SD,
+    BARO_NOISE_M,
+    EARTH_FIELD_NED_GAUSS,
     GARBAGE_ALT_RANGE_M,
     GPS_FUSION_TIME_CONSTANT_S,
     GPS_POS_GATE_SD,
     GPS_POS_NOISE_MIN_M,
+    GYRO_YAW_DRIFT_SD_RADPS,
+    HGT_FUSION_TIMEOUT_S,
     INTERMITTENT_FIX_MEAN_S,
     INTERMITTENT_GAP_MEAN_S,
+    MAG_FUSION_TIME_CONSTANT_S,
+    MAG_HEADING_GATE_RAD,
     NO_AID_TIMEOUT_S,
+    YAW_GNSS_ALIGN_MIN_SPEED_MPS,
+    YAW_GNSS_ALIGN_TIME_CONSTANT_S,
     FailureType,
 )
 from sitl.core.state import LocalState, VehicleState
 from uav_common.geo import GeoPoint, LocalProjection
 
-__all__ = ["RTK_FIXED_MAX_ERROR_M", "Estimator", "GpsReport", "NoiseModel"]
+__all__ = ["RTK_FIXED_MAX_ERROR_M", "Estimator", "GpsReport", "NoiseModel", "field_in_body"]
 
 #: GPS_RAW_INT reports an RTK fixed solution when the configured horizontal error (noise and bias) is this small.
 RTK_FIXED_MAX_ERROR_M = 0.05
 #: What the receiver reports without a configured error model (the truth): u-blox-like accuracies.
 _TRUTH_H_ACC_M = 0.5
 _TRUTH_V_ACC_M = 0.8
+#: Without a configured error model, the GNSS height's error wanders over this time.
+_TRUTH_CORRELATION_S = 30.0
 
 _OFF = int(FailureType.OFF)
 _STUCK = int(FailureType.STUCK)
@@ -100,9 +134,11 @@ class Estimator:
         self.projection = projection
         self.noise = noise
         self._rng = np.random.default_rng(seed)
-        heading_seq, fault_seq = np.random.SeedSequence(seed).spawn(2)
+        heading_seq, fault_seq, mag_seq, baro_seq = np.random.SeedSequence(seed).spawn(4)
         self._heading_rng = np.random.default_rng(heading_seq)
         self._fault_rng = np.random.default_rng(fault_seq)
+        self._mag_rng = np.random.default_rng(mag_seq)
+        self._baro_rng = np.random.default_rng(baro_seq)
         self._gm = np.zeros(9)  # correlated noise state: pos(3), vel(3), att(3)
         self._heading_bias = 0.0
         self._heading_gm = 0.0
@@ -146,6 +182,62 @@ class Estimator:
         self._stuck_fused_t = 0.0
         self._in_gap = False
         self._phase_until = 0.0
+        self._init_sensor_faults(noise)
+
+    def _init_sensor_faults(self, noise: NoiseModel | None) -> None:
+        #: The GNSS height's error (per-axis sd, m) that the height shows once the baro is lost.
+        self.gnss_height_sd_m = max(self.v_acc_m, 1.5 * self.h_acc_m)
+        self._gnss_height_corr_s = noise.noise_correlation_s if noise is not None else _TRUTH_CORRELATION_S
+        w_baro = 1.0 / (BARO_NOISE_M * BARO_NOISE_M)
+        #: How much a (stuck) baro sample weighs in the height against the GNSS height.
+        self.baro_weight = w_baro / (w_baro + 1.0 / (self.gnss_height_sd_m * self.gnss_height_sd_m))
+        self.baro_gate_m = BARO_GATE_SD * BARO_NOISE_M
+        #: Injected compass and baro failures (MAVLink FAILURE_TYPE values): set by the vehicle before each update.
+        self.mag_fault = 0
+        self.baro_fault = 0
+        #: What the estimator wants announced (STATUSTEXT): the vehicle takes them.
+        self.messages: list[str] = []
+        #: The magnetometer's reading in the body frame (gauss) when it is not the estimate's (STUCK, GARBAGE).
+        self.mag_report_body: tuple[float, float, float] | None = None
+        #: False while the compass publishes nothing (OFF, a gap of INTERMITTENT).
+        self.mag_reporting = True
+        self.mag_rejected_samples = 0
+        self.mag_gaps = 0
+        self._mag_on = False
+        self._mag_seen = 0
+        self._mag_fused = True
+        self._mag_err = 0.0
+        self._mag_drift = 0.0
+        self._mag_stuck_yaw = 0.0
+        self._mag_said = False
+        self._mag_in_gap = False
+        self._mag_phase_until = 0.0
+        #: The altitude (m AMSL) whose pressure the barometer reports when it is not the estimate's.
+        self.baro_report_alt_m: float | None = None
+        self.baro_reporting = True
+        self.baro_rejected_samples = 0
+        self.baro_gaps = 0
+        self._baro_on = False
+        self._baro_seen = 0
+        self._baro_fused = True
+        self._baro_latched = False
+        self._baro_rejected_since: float | None = None
+        self._baro_pull = 0.0
+        self._hgt_err = 0.0
+        self._baro_stuck_d = 0.0
+        self._baro_said = False
+        self._baro_in_gap = False
+        self._baro_phase_until = 0.0
+
+    @property
+    def mag_healthy(self) -> bool:
+        """Whether EKF2 fuses the compass (SYS_STATUS's 3D_MAG health)."""
+        return self._mag_fused
+
+    @property
+    def baro_healthy(self) -> bool:
+        """Whether EKF2 fuses the barometer (SYS_STATUS's ABSOLUTE_PRESSURE health)."""
+        return self._baro_fused
 
     @property
     def gps_ok(self) -> bool:
@@ -272,9 +364,13 @@ class Estimator:
         if self.noise is None:
             self._last_t = truth.t_s
             if self.gps_fault:
-                return self._with_fault(truth.t_s, LocalState(truth, (n, e, d), True), dt)
-            self._no_fault()
-            return LocalState(truth, (n, e, d), True)
+                out = self._with_fault(truth.t_s, LocalState(truth, (n, e, d), True), dt)
+            else:
+                self._no_fault()
+                out = LocalState(truth, (n, e, d), True)
+            if self.mag_fault or self.baro_fault or self._mag_on or self._baro_on:
+                return self._sensor_faults(truth, out, dt)
+            return out
         self._last_t = truth.t_s
         nm = self.noise
         self._step_noise(dt, nm)
@@ -309,9 +405,193 @@ class Estimator:
         )
         if self.gps_fault:
             # a fault replaces the receiver: a dropout of the noise model does not add to it
-            return self._with_fault(truth.t_s, LocalState(est, pos, True), dt)
-        self._no_fault()
-        return LocalState(est, pos, self.gps_ok)
+            out = self._with_fault(truth.t_s, LocalState(est, pos, True), dt)
+        else:
+            self._no_fault()
+            out = LocalState(est, pos, self.gps_ok)
+        if self.mag_fault or self.baro_fault or self._mag_on or self._baro_on:
+            return self._sensor_faults(truth, out, dt)
+        return out
+
+    # ---- compass and barometer failures -------------------------------------------------------------------------
+
+    def _sensor_faults(self, truth: VehicleState, est: LocalState, dt: float) -> LocalState:
+        yaw_shift = self._mag_update(truth, est, dt) if self.mag_fault or self._mag_on else 0.0
+        d_shift = self._baro_update(truth.t_s, est, dt) if self.baro_fault or self._baro_on else 0.0
+        if yaw_shift == 0.0 and d_shift == 0.0:
+            return est
+        s = est.full
+        n, e, d = est.pos_ned_m
+        pos = (n, e, d + d_shift)
+        geo = self.projection.to_geo(*pos) if d_shift != 0.0 else GeoPoint(s.lat_deg, s.lon_deg, s.alt_amsl_m)
+        roll, pitch, yaw = s.euler_rad
+        if yaw_shift != 0.0:
+            yaw = _wrap(yaw + yaw_shift)
+            q = _quat_from_euler(roll, pitch, yaw)
+        else:
+            q = s.q_wxyz
+        full = VehicleState(
+            s.t_s,
+            geo.lat_deg,
+            geo.lon_deg,
+            geo.alt_amsl_m,
+            s.vel_ned_mps,
+            q,
+            (roll, pitch, yaw),
+            s.rates_frd_radps,
+            s.specific_force_frd_mps2,
+            s.height_above_ground_m,
+            s.gravity_mps2,
+        )
+        return LocalState(full, pos, est.gps_ok, est.pos_valid)
+
+    def _mag_update(self, truth: VehicleState, est: LocalState, dt: float) -> float:
+        """The compass model: returns the change to the estimate's heading (rad)."""
+        fault = self.mag_fault
+        compass = self.heading_error_rad  # the working compass's own heading error (0 with the truth)
+        if fault != self._mag_seen:
+            self._mag_start(fault, truth, est, compass)
+        reporting, fused = self._mag_sample(fault, truth, dt)
+        if not fused:  # the gyro alone; GNSS velocity aligns the heading while the vehicle moves
+            self._mag_err += self._mag_drift * dt
+            vn, ve, _ = truth.vel_ned_mps
+            if vn * vn + ve * ve >= YAW_GNSS_ALIGN_MIN_SPEED_MPS * YAW_GNSS_ALIGN_MIN_SPEED_MPS:
+                self._mag_err -= min(1.0, dt / YAW_GNSS_ALIGN_TIME_CONSTANT_S) * self._mag_err
+            if not self._mag_said:
+                self._mag_said = True
+                why = {_OFF: "stopped", _INTERMITTENT: "intermittent"}.get(fault, "rejected")
+                self.messages.append(f"EKF2: compass {why}, heading from gyro and GNSS velocity")
+        elif fault != _STUCK:  # a working compass pulls the heading back to its own error
+            self._mag_err += min(1.0, dt / MAG_FUSION_TIME_CONSTANT_S) * (compass - self._mag_err)
+        self.mag_reporting = reporting
+        self._mag_fused = fused
+        if not fault and abs(self._mag_err - compass) < 1e-4:  # cleared and recovered: the compass's again
+            self._mag_on = False
+            return 0.0
+        return self._mag_err - compass
+
+    def _mag_start(self, fault: int, truth: VehicleState, est: LocalState, compass: float) -> None:
+        """A new compass failure (or OK) takes over from the present state."""
+        self._mag_seen = fault
+        self._mag_said = False
+        self.mag_report_body = None
+        self._mag_in_gap = False
+        self._mag_phase_until = truth.t_s
+        if not fault:
+            return
+        if not self._mag_on:  # take over from the compass's present error
+            self._mag_err = compass
+            self._mag_on = True
+        self._mag_drift = float(self._mag_rng.normal(0.0, GYRO_YAW_DRIFT_SD_RADPS))
+        if fault == _STUCK:  # the field it froze at says this heading
+            self._mag_stuck_yaw = truth.euler_rad[2] + self._mag_err
+            self.mag_report_body = field_in_body(est.full.q_wxyz)
+
+    def _mag_sample(self, fault: int, truth: VehicleState, dt: float) -> tuple[bool, bool]:
+        """What the compass reports this step and whether EKF2 fuses it: ``(reporting, fused)``."""
+        if fault == _OFF:
+            return False, False
+        if fault == _GARBAGE:
+            r = self._mag_rng
+            x = float(r.uniform(0.65, 2.0))  # at least 0.65 gauss on one axis: beyond any field + the gate
+            sign = 1.0 if r.random() < 0.5 else -1.0
+            self.mag_report_body = (sign * x, float(r.uniform(-2.0, 2.0)), float(r.uniform(-2.0, 2.0)))
+            return True, False
+        if fault == _STUCK:
+            innovation = _wrap(self._mag_stuck_yaw - (truth.euler_rad[2] + self._mag_err))
+            if abs(innovation) > MAG_HEADING_GATE_RAD:
+                self.mag_rejected_samples += 1
+                return True, False
+            self._mag_err += min(1.0, dt / MAG_FUSION_TIME_CONSTANT_S) * innovation
+            return True, True
+        if fault == _INTERMITTENT:
+            if truth.t_s >= self._mag_phase_until:
+                self._mag_in_gap = not self._mag_in_gap
+                mean = INTERMITTENT_GAP_MEAN_S if self._mag_in_gap else INTERMITTENT_FIX_MEAN_S
+                self._mag_phase_until = truth.t_s + float(self._mag_rng.exponential(mean))
+                if self._mag_in_gap:
+                    self.mag_gaps += 1
+            if self._mag_in_gap:
+                return False, False
+        return True, True
+
+    def _baro_update(self, t_s: float, est: LocalState, dt: float) -> float:
+        """The barometer model: returns the change to the estimate's NED down position (m)."""
+        fault = self.baro_fault
+        d0 = est.pos_ned_m[2]  # the height with the baro fused as the reference
+        if fault != self._baro_seen:
+            self._baro_start(fault, t_s, est)
+            if not fault:
+                return 0.0
+        reporting, fused, pull_to = self._baro_sample(fault, t_s, est, d0)
+        k = min(1.0, dt / GPS_FUSION_TIME_CONSTANT_S)
+        self._baro_pull += k * (pull_to - self._baro_pull)
+        if fused:  # the baro holds the height again
+            self._hgt_err -= k * self._hgt_err
+        else:  # the GNSS height alone: its error wanders in from zero
+            if dt > 0.0:
+                a = math.exp(-dt / self._gnss_height_corr_s)
+                b = math.sqrt(max(0.0, 1.0 - a * a))
+                self._hgt_err = a * self._hgt_err + b * self.gnss_height_sd_m * float(self._baro_rng.standard_normal())
+            if not self._baro_said and fault != _STUCK:
+                self._baro_said = True
+                why = {_OFF: "stopped", _INTERMITTENT: "intermittent"}.get(fault, "rejected")
+                self.messages.append(f"EKF2: baro {why}, height from GNSS")
+        self.baro_reporting = reporting
+        self._baro_fused = fused
+        return self._baro_pull + self._hgt_err
+
+    def _baro_start(self, fault: int, t_s: float, est: LocalState) -> None:
+        """A new baro failure (or OK) takes over from the present state."""
+        self._baro_seen = fault
+        self._baro_said = False
+        self._baro_latched = False
+        self._baro_rejected_since = None
+        self.baro_report_alt_m = None
+        self._baro_in_gap = False
+        self._baro_phase_until = t_s
+        if not fault:  # baro fusion restarts as the height reference: EKF2 resets the height to it
+            self._baro_on = False
+            self._baro_fused = True
+            self.baro_reporting = True
+            self._baro_pull = self._hgt_err = 0.0
+            return
+        self._baro_on = True
+        if fault == _STUCK:
+            self._baro_stuck_d = est.pos_ned_m[2]  # the baro's own reading: the height it fused until now
+            self.baro_report_alt_m = est.full.alt_amsl_m
+
+    def _baro_sample(self, fault: int, t_s: float, est: LocalState, d0: float) -> tuple[bool, bool, float]:
+        """What the baro reports this step, whether EKF2 fuses it, and how far it pulls the height (down, m)."""
+        if fault == _OFF:
+            return False, False, 0.0
+        if fault == _GARBAGE:
+            r = self._baro_rng
+            off = float(r.uniform(2.0 * self.baro_gate_m, 5000.0))  # always beyond the gate
+            self.baro_report_alt_m = est.full.alt_amsl_m + (off if r.random() < 0.5 else -off)
+            return True, False, 0.0
+        if fault == _STUCK:
+            innovation = self._baro_stuck_d - (d0 + self._baro_pull + self._hgt_err)
+            if not self._baro_latched and abs(innovation) <= self.baro_gate_m:
+                self._baro_rejected_since = None
+                return True, True, self.baro_weight * (self._baro_stuck_d - d0)
+            self.baro_rejected_samples += 1
+            if self._baro_rejected_since is None:
+                self._baro_rejected_since = t_s
+            elif not self._baro_latched and t_s - self._baro_rejected_since >= HGT_FUSION_TIMEOUT_S:
+                self._baro_latched = True  # EKF2: "stopping baro height fusion, fusion failing"; baro_fault
+                self.messages.append("EKF2: baro fusion failing, height from GNSS")
+            return True, False, 0.0
+        if fault == _INTERMITTENT:
+            if t_s >= self._baro_phase_until:
+                self._baro_in_gap = not self._baro_in_gap
+                mean = INTERMITTENT_GAP_MEAN_S if self._baro_in_gap else INTERMITTENT_FIX_MEAN_S
+                self._baro_phase_until = t_s + float(self._baro_rng.exponential(mean))
+                if self._baro_in_gap:
+                    self.baro_gaps += 1
+            if self._baro_in_gap:
+                return False, False, 0.0
+        return True, True, 0.0
 
     def _step_noise(self, dt: float, nm: NoiseModel) -> None:
         if dt <= 0.0:
@@ -347,6 +627,21 @@ class Estimator:
             heading = float(self._rng.uniform(0.0, 2.0 * math.pi))
             self._drift = (nm.dropout_drift_mps * math.cos(heading), nm.dropout_drift_mps * math.sin(heading))
             self.dropouts += 1
+
+
+def _wrap(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def field_in_body(q_wxyz: tuple[float, float, float, float]) -> tuple[float, float, float]:
+    """The Earth's field (:data:`EARTH_FIELD_NED_GAUSS`) in the body frame of attitude ``q_wxyz``: R^T B."""
+    w, x, y, z = q_wxyz
+    mn, me, md = EARTH_FIELD_NED_GAUSS
+    return (
+        (1 - 2 * (y * y + z * z)) * mn + 2 * (x * y + w * z) * me + 2 * (x * z - w * y) * md,
+        2 * (x * y - w * z) * mn + (1 - 2 * (x * x + z * z)) * me + 2 * (y * z + w * x) * md,
+        2 * (x * z + w * y) * mn + 2 * (y * z - w * x) * me + (1 - 2 * (x * x + y * y)) * md,
+    )
 
 
 def _quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:

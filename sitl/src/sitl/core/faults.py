@@ -28,32 +28,50 @@ how the vehicle reacts (as PX4 would):
   battery failsafes act (critical: land).
 * ``SYSTEM_MOTOR`` ``OFF``: that motor (1..4, PX4 quad-X order; 0 = all) stops; ``WRONG``: it delivers
   :data:`MOTOR_WRONG_FACTOR` of the commanded ESC duty (a damaged propeller or a failing ESC).
-* ``OK`` on any of these units clears it; a new GPS type replaces the one in force.
+* ``SENSOR_BARO`` and ``SENSOR_MAG`` ``OFF``, ``STUCK``, ``GARBAGE``, ``INTERMITTENT``: what the sensor reports
+  (HIGHRES_IMU) and how EKF2 on a multicopter with one baro and one compass reacts, modelled in
+  :mod:`sitl.core.estimator`: a baro that stops or is rejected by its innovation gate (:data:`BARO_GATE_SD`
+  times :data:`BARO_NOISE_M`) leaves the height to the GNSS (EKF2_HGT_REF's fallback), a compass that stops
+  or is rejected (:data:`MAG_GATE_SD` times :data:`MAG_NOISE_GAUSS`) leaves the heading to the gyro, aligned
+  by the GNSS velocity once the vehicle moves (EKF-GSF). Neither triggers a failsafe while the GPS is good.
+* ``OK`` on any of these units clears it; a new type replaces the one in force on its unit.
 
 PX4 itself (its GPS failure injector, 2025) knows GPS OFF, STUCK and WRONG; GARBAGE and INTERMITTENT are
 this SITL's, with the reaction PX4's EKF2 has to such data. Not modelled of EKF2: after 7 s of rejected
 samples it resets its position to the GPS (to the frozen fix for STUCK) and fuses again; here the estimate
 stays invalid until the fault is cleared.
 
-Every other unit/type pair (gyro, accel, mag, baro, airspeed, optical flow, RC and MAVLink signal, GPS
+Every other unit/type pair (gyro, accel, airspeed, optical flow, RC and MAVLink signal, GPS
 wrong, slow or delayed...) is answered ``UNSUPPORTED``: not modelled.
 """
 
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 __all__ = [
+    "BARO_GATE_SD",
+    "BARO_NOISE_M",
+    "EARTH_FIELD_NED_GAUSS",
     "GARBAGE_ALT_RANGE_M",
     "GPS_FUSION_TIME_CONSTANT_S",
     "GPS_POS_GATE_SD",
     "GPS_POS_NOISE_MIN_M",
+    "GYRO_YAW_DRIFT_SD_RADPS",
+    "HGT_FUSION_TIMEOUT_S",
     "INTERMITTENT_FIX_MEAN_S",
     "INTERMITTENT_GAP_MEAN_S",
+    "MAG_FUSION_TIME_CONSTANT_S",
+    "MAG_GATE_SD",
+    "MAG_HEADING_GATE_RAD",
+    "MAG_NOISE_GAUSS",
     "MOTOR_COUNT",
     "MOTOR_WRONG_FACTOR",
     "NO_AID_TIMEOUT_S",
+    "YAW_GNSS_ALIGN_MIN_SPEED_MPS",
+    "YAW_GNSS_ALIGN_TIME_CONSTANT_S",
     "FailureType",
     "FailureUnit",
     "FaultState",
@@ -73,6 +91,29 @@ INTERMITTENT_FIX_MEAN_S = 3.0
 INTERMITTENT_GAP_MEAN_S = 1.0
 #: GARBAGE: the range of the random altitudes reported (m AMSL).
 GARBAGE_ALT_RANGE_M = (-1000.0, 10000.0)
+#: PX4's EKF2_BARO_GATE: a baro height sample whose innovation exceeds this many standard deviations is rejected.
+BARO_GATE_SD = 5.0
+#: PX4's EKF2_BARO_NOISE (m): the baro height's measurement noise (so the gate is 17.5 m).
+BARO_NOISE_M = 3.5
+#: EKF2's hgt_fusion_timeout_max: baro height fusion failing this long stops it for good (baro_fault).
+HGT_FUSION_TIMEOUT_S = 5.0
+#: PX4's EKF2_MAG_GATE and EKF2_MAG_NOISE (gauss): the 3-axis magnetometer fusion's innovation gate.
+MAG_GATE_SD = 3.0
+MAG_NOISE_GAUSS = 0.05
+#: The Earth's field (gauss, NED) the simulated magnetometer measures (central Europe: 0.48 gauss, 63 deg down).
+EARTH_FIELD_NED_GAUSS = (0.216, 0.0, 0.423)
+#: The heading error whose horizontal-field innovation leaves that gate: 2 asin(gate / 2H), about 40.6 deg.
+MAG_HEADING_GATE_RAD = 2.0 * math.asin(min(1.0, MAG_GATE_SD * MAG_NOISE_GAUSS / (2.0 * EARTH_FIELD_NED_GAUSS[0])))
+#: How fast fused compass samples pull the heading: sqrt(R / q) for the horizontal-field noise (0.05 / 0.216 rad)
+#: at 50 Hz against EKF2_GYR_NOISE (0.015 rad/s/sqrt(Hz)) process noise, about 2 s.
+MAG_FUSION_TIME_CONSTANT_S = 2.0
+#: Without the compass the heading integrates the gyro: the residual z-gyro bias EKF2 had not learned
+#: (drawn once per failure, this standard deviation: 0.02 deg/s, 72 deg/h; an assumption for a MEMS IMU).
+GYRO_YAW_DRIFT_SD_RADPS = math.radians(0.02)
+#: Moving at least this fast, GNSS velocity with the vehicle's accelerations makes the heading observable
+#: (EKF2's fusion and its EKF-GSF yaw estimator): the heading error then decays over this time constant.
+YAW_GNSS_ALIGN_MIN_SPEED_MPS = 1.0
+YAW_GNSS_ALIGN_TIME_CONSTANT_S = 10.0
 #: A motor with a WRONG failure delivers this fraction of its commanded ESC duty.
 MOTOR_WRONG_FACTOR = 0.7
 MOTOR_COUNT = 4
@@ -116,6 +157,12 @@ MODELLED: dict[FailureUnit, frozenset[FailureType]] = {
     FailureUnit.SENSOR_GPS: frozenset(
         {FailureType.OK, FailureType.OFF, FailureType.STUCK, FailureType.GARBAGE, FailureType.INTERMITTENT}
     ),
+    FailureUnit.SENSOR_MAG: frozenset(
+        {FailureType.OK, FailureType.OFF, FailureType.STUCK, FailureType.GARBAGE, FailureType.INTERMITTENT}
+    ),
+    FailureUnit.SENSOR_BARO: frozenset(
+        {FailureType.OK, FailureType.OFF, FailureType.STUCK, FailureType.GARBAGE, FailureType.INTERMITTENT}
+    ),
     FailureUnit.SYSTEM_BATTERY: frozenset({FailureType.OK, FailureType.OFF}),
     FailureUnit.SYSTEM_MOTOR: frozenset({FailureType.OK, FailureType.OFF, FailureType.WRONG}),
 }
@@ -139,6 +186,9 @@ class FaultState:
     def __init__(self) -> None:
         #: The GPS failure in force (OK: none).
         self.gps = FailureType.OK
+        #: The compass and barometer failures in force (OK: none).
+        self.mag = FailureType.OK
+        self.baro = FailureType.OK
         self.battery_off = False
         self.motor_factors: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
         self.injected = 0
@@ -153,13 +203,23 @@ class FaultState:
 
     @property
     def any(self) -> bool:
-        return self.gps is not FailureType.OK or self.battery_off or self.motors_degraded
+        return (
+            self.gps is not FailureType.OK
+            or self.mag is not FailureType.OK
+            or self.baro is not FailureType.OK
+            or self.battery_off
+            or self.motors_degraded
+        )
 
     def describe(self) -> list[str]:
         """The failures in force, e.g. ``["gps stuck", "motor 1 wrong (0.7)"]``."""
         out = []
         if self.gps is not FailureType.OK:
             out.append(f"gps {self.gps.name.lower()}")
+        if self.mag is not FailureType.OK:
+            out.append(f"mag {self.mag.name.lower()}")
+        if self.baro is not FailureType.OK:
+            out.append(f"baro {self.baro.name.lower()}")
         if self.battery_off:
             out.append("battery off")
         for i, f in enumerate(self.motor_factors):
@@ -168,6 +228,16 @@ class FaultState:
             elif f != 1.0:
                 out.append(f"motor {i + 1} wrong ({f:g})")
         return out
+
+    def _sensor(self, unit: FailureUnit, failure_type: FailureType, instance: int) -> _Result | None:
+        """A compass or baro failure; a refusal if ``instance`` is not this vehicle's one sensor."""
+        if instance not in (0, 1):  # one compass and one barometer (PX4 numbers instances from 1; 0 = all)
+            return _Result(InjectOutcome.INVALID, f"Failure injection: no {unit.name.lower()} {instance} (1, 0 all)")
+        if unit is FailureUnit.SENSOR_MAG:
+            self.mag = failure_type
+        else:
+            self.baro = failure_type
+        return None
 
     def inject(self, unit: int, failure_type: int, instance: int) -> _Result:
         """Apply one MAV_CMD_INJECT_FAILURE (already allowed by SYS_FAILURE_EN)."""
@@ -196,6 +266,10 @@ class FaultState:
             what = f"motor {instance or 'all'} {t.name.lower()}"
         elif u is FailureUnit.SENSOR_GPS:
             self.gps = t
+        elif u in (FailureUnit.SENSOR_MAG, FailureUnit.SENSOR_BARO):
+            refused = self._sensor(u, t, instance)
+            if refused is not None:
+                return refused
         else:
             self.battery_off = t is FailureType.OFF
         self.injected += 1

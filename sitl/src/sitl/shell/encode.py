@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from sitl.core.control import Setpoint
+from sitl.core.estimator import field_in_body
 from sitl.core.failsafe import FailsafeKind
 from sitl.core.modes import FlightMode
 from sitl.core.params import ParamTable, encode_wire_value
@@ -49,8 +50,11 @@ SENSORS = (
     | _S.MAV_SYS_STATUS_SENSOR_BATTERY
     | _S.MAV_SYS_STATUS_PREARM_CHECK
 )
-# Earth magnetic field (gauss, NED) for HIGHRES_IMU's synthetic magnetometer (central Europe).
-_MAG_NED_GAUSS = (0.216, 0.0, 0.423)
+# HIGHRES_IMU fields_updated: every field, and the magnetometer's (bits 6-8) and the barometer's
+# (abs pressure, pressure altitude, temperature: bits 9, 11, 12).
+_HIGHRES_ALL = 0x1FFF
+_HIGHRES_MAG = 0x1C0
+_HIGHRES_BARO = 0x1A00
 INT16_MAX = 32767
 UINT16_MAX = 65535
 
@@ -104,6 +108,9 @@ class Encoder:
         self.fast = WirePackers()
         self.personality = vehicle.autopilot.personality
         self._chunk_id = 0
+        # the last magnetometer and barometer readings (what HIGHRES_IMU repeats while a sensor is silent)
+        self._last_mag = (0.0, 0.0, 0.0)
+        self._last_baro = (0.0, 0.0, 0.0)
         #: message id -> builder (what :meth:`build` dispatches through; the gateway's stream loop calls it directly)
         self.builders = self._table()
 
@@ -203,8 +210,13 @@ class Encoder:
         ap = self.v.autopilot
         b = self.v.battery_reading
         health = SENSORS
+        estimator = self.v.estimator
         if not self.v.est.gps_ok:
             health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        if not estimator.mag_healthy:
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+        if not estimator.baro_healthy:
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
         if ap.prearm_failure() is not None:
             health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
         if ap.crashed:
@@ -334,20 +346,26 @@ class Encoder:
 
     def highres_imu(self) -> Any:
         s = self.v.est.full
+        est = self.v.estimator
         ax, ay, az = s.specific_force_frd_mps2
-        w, x, y, z = s.q_wxyz
-        # NED -> body: R^T v
-        mn, me, md = _MAG_NED_GAUSS
-        r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-        r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-        r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-        mx = r00 * mn + r10 * me + r20 * md
-        my = r01 * mn + r11 * me + r21 * md
-        mz = r02 * mn + r12 * me + r22 * md
-        pressure = _isa_pressure_hpa(s.alt_amsl_m)
-        temperature = 15.0 - 0.0065 * s.alt_amsl_m
+        updated = _HIGHRES_ALL
+        # the magnetometer: the field at the estimate's attitude, or what a failed one reports
+        if not est.mag_reporting:
+            mx, my, mz = self._last_mag  # silent: the last reading, not flagged as updated (PX4)
+            updated &= ~_HIGHRES_MAG
+        else:
+            mx, my, mz = est.mag_report_body if est.mag_report_body is not None else field_in_body(s.q_wxyz)
+            self._last_mag = (mx, my, mz)
+        if not est.baro_reporting:
+            pressure, alt, temperature = self._last_baro
+            updated &= ~_HIGHRES_BARO
+        else:
+            alt = est.baro_report_alt_m if est.baro_report_alt_m is not None else s.alt_amsl_m
+            pressure = _isa_pressure_hpa(alt)
+            temperature = 15.0 - 0.0065 * alt
+            self._last_baro = (pressure, alt, temperature)
         return self.fast.highres_imu(
-            self.time_usec, ax, ay, az, *s.rates_frd_radps, mx, my, mz, pressure, 0.0, s.alt_amsl_m, temperature, 0x1FFF
+            self.time_usec, ax, ay, az, *s.rates_frd_radps, mx, my, mz, pressure, 0.0, alt, temperature, updated
         )
 
     def odometry(self, *, truth: bool) -> Any:

@@ -541,10 +541,11 @@ class BridgeEngine:
         for out in self._delayed:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
             if out.t_capture_s + latency <= t_s + 1e-9:
+                done = dataclasses.replace(out, detections=None)
                 if isinstance(out.frame, _PendingFrame):
                     result = out.frame.job.result()
-                    out = dataclasses.replace(out, exposure_s=result.exposure_s, gain=result.gain)
-                ready.append(dataclasses.replace(out, detections=None))
+                    done = dataclasses.replace(done, exposure_s=result.exposure_s, gain=result.gain)
+                ready.append(done)
             else:
                 keep.append(out)
         self._delayed = keep

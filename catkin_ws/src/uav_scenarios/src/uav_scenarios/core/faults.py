@@ -44,6 +44,8 @@ FAILURE_TYPE_CODES: dict[str, int] = {
 #: What the SITL simulates (docs/sitl.md "Failure injection"); ``ok`` clears any of them.
 SIMULATED: dict[str, frozenset[str]] = {
     "gps": frozenset({"off", "stuck", "garbage", "intermittent"}),
+    "mag": frozenset({"off", "stuck", "garbage", "intermittent"}),
+    "baro": frozenset({"off", "stuck", "garbage", "intermittent"}),
     "battery": frozenset({"off"}),
     "motor": frozenset({"off", "wrong"}),
 }
