@@ -247,6 +247,16 @@ def degraded_detector(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     }
 
 
+def detector(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The learned detector on the detector camera's colour images: the scenario's model ("" = the shipped one;
+    relative to the scenario file's folder)."""
+    perception = scenario.perception
+    model = perception.model
+    if model and not model.startswith(("/", "~")) and scenario.source is not None:
+        model = str(scenario.source.parent / model)
+    return {"camera": perception.camera, "image": f"/cameras/{perception.camera}/color/image_raw", "model": model}
+
+
 #: Node name -> settings function. ``node_params`` merges ``scenario.node_params[name]`` over it.
 NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "goal_selector": goal_selector,
@@ -261,6 +271,7 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "tracker": tracker,
     "geolocator": geolocator,
     "degraded_detector": degraded_detector,
+    "detector": detector,
 }
 
 
@@ -282,6 +293,11 @@ def node_params(scenario: Scenario, node: str, ctx: RunContext | None = None) ->
 def needs_terrain_model(scenario: Scenario) -> bool:
     """The geolocator gets the world's terrain as its prior terrain model."""
     return scenario.perception.geolocation.terrain_model
+
+
+def uses_learned_detector(scenario: Scenario) -> bool:
+    """The run starts the learned detector (``detector``)."""
+    return scenario.perception.detector is DetectorKind.LEARNED
 
 
 def uses_stand_in(scenario: Scenario) -> bool:
