@@ -75,10 +75,11 @@ def coco_scores(data: DatasetSplit, detections: list[dict[str, Any]]) -> dict[st
 
     A bin without ground truth reports ``gt`` 0 and NaN scores (pycocotools' -1).
     """
-    gt = {
+    annotations: list[dict[str, Any]] = []
+    gt: dict[str, Any] = {
         "images": [{"id": f.image_id, "width": f.width, "height": f.height} for f in data.frames],
         "categories": [{"id": cat, "name": data.classes[col]} for cat, col in data.category_to_column.items()],
-        "annotations": [],
+        "annotations": annotations,
     }
     n = 0
     for f in data.frames:
@@ -86,7 +87,7 @@ def coco_scores(data: DatasetSplit, detections: list[dict[str, Any]]) -> dict[st
             n += 1
             cat = next(c for c, k in data.category_to_column.items() if k == col)
             w, h = float(box[2]), float(box[3])
-            gt["annotations"].append(
+            annotations.append(
                 {
                     "id": n,
                     "image_id": f.image_id,
@@ -101,7 +102,7 @@ def coco_scores(data: DatasetSplit, detections: list[dict[str, Any]]) -> dict[st
         coco_gt.dataset = gt
         coco_gt.createIndex()
         coco_dt = coco_gt.loadRes(detections) if detections else None
-    sizes = {a["id"]: np.sqrt(a["area"]) for a in gt["annotations"]}
+    sizes = {a["id"]: np.sqrt(a["area"]) for a in annotations}
     out: dict[str, dict[str, dict[str, float]]] = {}
     targets = [("all", list(data.category_to_column))] + [
         (data.classes[col], [cat]) for cat, col in data.category_to_column.items()
@@ -109,7 +110,7 @@ def coco_scores(data: DatasetSplit, detections: list[dict[str, Any]]) -> dict[st
     for name, cats in targets:
         out[name] = {}
         for bin_name, (lo, hi) in SIZE_BINS.items():
-            count = sum(1 for a in gt["annotations"] if a["category_id"] in cats and lo <= sizes[a["id"]] < hi)
+            count = sum(1 for a in annotations if a["category_id"] in cats and lo <= sizes[a["id"]] < hi)
             row = {"gt": float(count), "AP": float("nan"), "AP50": float("nan"), "AR100": float("nan")}
             if count and coco_dt is not None:
                 with contextlib.redirect_stdout(io.StringIO()):

@@ -46,6 +46,7 @@ class TinyCenterNet(nn.Module):
         self.heat = nn.Conv2d(w * 2, num_classes, 1)
         self.offset = nn.Conv2d(w * 2, 2, 1)
         self.size = nn.Conv2d(w * 2, 2, 1)
+        assert self.heat.bias is not None  # a Conv2d made with bias=True
         nn.init.constant_(self.heat.bias, -4.6)  # a prior of 1 % "centre here": focal loss starts stable
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

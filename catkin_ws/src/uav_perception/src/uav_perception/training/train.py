@@ -201,8 +201,8 @@ def train(
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        for k, v in (("loss", loss), ("heat", l_heat), ("offset", l_off), ("size", l_size)):
-            acc[k] += float(v.detach())
+        for key, v in (("loss", loss), ("heat", l_heat), ("offset", l_off), ("size", l_size)):
+            acc[key] += float(v.detach())
         if step % cfg.log_every == 0 or step == cfg.steps:
             k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
             point = {"step": float(step), "lr": lr, "seconds": time.perf_counter() - t0}

@@ -810,6 +810,9 @@ def effective_yaml(scenario: Scenario, note: str = "") -> str:
     data = to_mapping(scenario)
     data.pop("source", None)
     data["world"]["config"] = str(scenario.world_config_path)
+    model = scenario.perception.model
+    if model and not Path(model).expanduser().is_absolute() and scenario.source is not None:
+        data["perception"]["model"] = str(scenario.source.parent / model)  # a run folder's copy loads anywhere
     data["stress"] = []  # already laid over it (stress_applied says which): never twice
     header = f"# Effective scenario of a run (from {scenario.source}{note}).\n"
     return header + yaml.safe_dump(data, sort_keys=False)

@@ -24,8 +24,10 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from uav_perception.core.detection.boxes import RawDetection
 from uav_perception.errors import ModelFormatError
@@ -144,7 +146,7 @@ def validate_io(path: str, inputs: Sequence[TensorInfo], outputs: Sequence[Tenso
     return ModelSpec(inp.name, None if h is None or w is None else (h, w), None if rows is None else rows - 4)
 
 
-def check_output(path: str, output: np.ndarray, spec: ModelSpec, num_names: int | None) -> int:
+def check_output(path: str, output: npt.NDArray[Any], spec: ModelSpec, num_names: int | None) -> int:
     """Check an array the model returned; the number of classes ``C``.
 
     ``num_names``: the number of class names the model's metadata gives (``None``: none given).
@@ -175,7 +177,7 @@ class Letterbox:
     pad_y: float
 
 
-def _resize_bilinear(image: np.ndarray, out_h: int, out_w: int) -> np.ndarray:
+def _resize_bilinear(image: npt.NDArray[Any], out_h: int, out_w: int) -> npt.NDArray[Any]:
     """Bilinear resize (half-pixel centres, as OpenCV's INTER_LINEAR) of an ``(h, w, 3)`` uint8 image, float32."""
     h, w = image.shape[:2]
     ys = np.clip((np.arange(out_h, dtype=np.float32) + 0.5) * (h / out_h) - 0.5, 0, h - 1)
@@ -189,11 +191,11 @@ def _resize_bilinear(image: np.ndarray, out_h: int, out_w: int) -> np.ndarray:
     img = image.astype(np.float32)
     top = img[y0][:, x0] * (1 - fx) + img[y0][:, x1] * fx
     bottom = img[y1][:, x0] * (1 - fx) + img[y1][:, x1] * fx
-    out: np.ndarray = top * (1 - fy) + bottom * fy
+    out: npt.NDArray[Any] = top * (1 - fy) + bottom * fy
     return out
 
 
-def letterbox(image_rgb: np.ndarray, input_hw: tuple[int, int] | None) -> tuple[np.ndarray, Letterbox]:
+def letterbox(image_rgb: npt.NDArray[Any], input_hw: tuple[int, int] | None) -> tuple[npt.NDArray[Any], Letterbox]:
     """The model's input tensor ``float32 [1, 3, H, W]`` for an ``(h, w, 3)`` uint8 RGB image.
 
     Fixed ``input_hw``: scaled to fit (the aspect kept), centred, padded with :data:`LETTERBOX_FILL`; an image
@@ -226,7 +228,7 @@ def letterbox(image_rgb: np.ndarray, input_hw: tuple[int, int] | None) -> tuple[
     return tensor, Letterbox(scale=sx, pad_x=float(px), pad_y=float(py))
 
 
-def _iou_one(box: np.ndarray, others: np.ndarray) -> np.ndarray:
+def _iou_one(box: npt.NDArray[Any], others: npt.NDArray[Any]) -> npt.NDArray[Any]:
     x0 = np.maximum(box[0], others[:, 0])
     y0 = np.maximum(box[1], others[:, 1])
     x1 = np.minimum(box[2], others[:, 2])
@@ -235,11 +237,13 @@ def _iou_one(box: np.ndarray, others: np.ndarray) -> np.ndarray:
     area = (box[2] - box[0]) * (box[3] - box[1])
     areas = (others[:, 2] - others[:, 0]) * (others[:, 3] - others[:, 1])
     union = area + areas - inter
-    out: np.ndarray = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+    out: npt.NDArray[Any] = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
     return out
 
 
-def nms(boxes_xyxy: np.ndarray, scores: np.ndarray, iou_threshold: float, max_keep: int) -> np.ndarray:
+def nms(
+    boxes_xyxy: npt.NDArray[Any], scores: npt.NDArray[Any], iou_threshold: float, max_keep: int
+) -> npt.NDArray[Any]:
     """Greedy non-maximum suppression: indices of the kept boxes, best score first.
 
     A box is dropped when it overlaps a kept, higher-scoring box by more than ``iou_threshold`` (IoU); ties
@@ -256,7 +260,7 @@ def nms(boxes_xyxy: np.ndarray, scores: np.ndarray, iou_threshold: float, max_ke
 
 
 def decode(
-    output: np.ndarray,
+    output: npt.NDArray[Any],
     lb: Letterbox,
     *,
     width_px: int,
