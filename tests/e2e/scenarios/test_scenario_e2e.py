@@ -161,29 +161,6 @@ def test_sar_with_box_only_detections_finds_the_person() -> None:
     assert (run_dir / "figures" / "gallery.png").stat().st_size > 10_000  # crops of its mistakes
 
 
-def test_sar_with_the_learned_detector_finds_the_person() -> None:
-    """The shipped ONNX model (trained here on other worlds) runs as the detector node on the forward camera's
-    colour images; the geolocator, the tracker and the confirmation see only its boxes, and the search ends on the
-    person placed by the scenario."""
-    run_dir, out = uav_run(HERE / "small_sar_learned.yaml", "sar_learned")
-    m = metrics(run_dir)
-    assert m["final"]
-    assert m["stop_reason"] == "target_found", out
-    search = m["search"]
-    assert search["correct"] is True, search
-    assert search["error_m"] < 3.0
-    det = m["detection"]
-    assert det["source"] == "learned"
-    assert det["tp"] > 0
-    assert det["person_first_detected"]["t_s"] <= m["time"]["complete_s"]
-    geo = det["geolocation"]
-    assert sum(geo["placed"].values()) > 0
-    run = read_run_bag(run_dir / "run.bag")
-    placed = [f for f in run.detections if f.source == "learned"]
-    assert placed
-    assert all(d.instance_id == 0 for f in placed for d in f.detections)  # box-only: no ids from the detector
-
-
 def replay(run_dir: Path, out_dir: Path) -> None:
     port = free_port()
     env = {"ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1"}

@@ -92,7 +92,7 @@ def test_a_learned_detectors_model_is_loaded_before_anything_starts(tmp_path: Pa
         check_node_settings(load_scenario(path))
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "corrupt.onnx").write_bytes(b"\x00" * 64)
-    with pytest.raises(ScenarioConfigError, match="corrupt.onnx: not a loadable ONNX model"):
+    with pytest.raises(ScenarioConfigError, match=r"corrupt\.onnx: not a loadable ONNX model"):
         check_node_settings(load_scenario(_learned(tmp_path, "models/corrupt.onnx")))
     constant_detector(tmp_path / "models" / "wrong.onnx", [[1, 2, 3, 4, 5, 6]], output_shape=[1, 6])
     with pytest.raises(ScenarioConfigError, match=r"wrong.onnx: output 'output0' is tensor\(float\) \[1, 6\]"):
