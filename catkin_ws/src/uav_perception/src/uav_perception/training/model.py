@@ -16,10 +16,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F  # noqa: N812
 
-__all__ = ["STRIDE", "Decoded", "TinyCenterNet", "export_onnx"]
+from uav_perception.training.targets import STRIDE
 
-#: Output stride: one heatmap cell per 4x4 input pixels.
-STRIDE = 4
+__all__ = ["STRIDE", "Decoded", "TinyCenterNet", "export_onnx"]
 
 
 def _block(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:

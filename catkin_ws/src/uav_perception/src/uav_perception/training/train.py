@@ -21,9 +21,10 @@ import torch
 from torch.nn import functional as F  # noqa: N812
 
 from uav_perception.training.data import DatasetSplit
-from uav_perception.training.model import STRIDE, TinyCenterNet
+from uav_perception.training.model import TinyCenterNet
+from uav_perception.training.targets import STRIDE, crop_boxes, make_targets
 
-__all__ = ["TrainConfig", "TrainResult", "make_targets", "train"]
+__all__ = ["TrainConfig", "TrainResult", "train"]
 
 
 @dataclass(frozen=True)
@@ -65,64 +66,6 @@ class TrainResult:
     samples: int
 
 
-def make_targets(
-    boxes: np.ndarray, labels: np.ndarray, num_classes: int, *, out_h: int, out_w: int, min_box_px: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """CenterNet targets for one crop: heatmap ``[C, h, w]``, offset and log-size ``[2, h, w]``, mask ``[h, w]``.
-
-    ``boxes`` ``[n, 4]`` pixel-edge ``[x, y, w, h]`` in the crop. The Gaussian's sigma follows the box size in
-    cells (at least 0.5 cell), so a 12 px person peaks over about one cell and a 60 px car over several.
-    """
-    heat = np.zeros((num_classes, out_h, out_w), np.float32)
-    offset = np.zeros((2, out_h, out_w), np.float32)
-    logsize = np.zeros((2, out_h, out_w), np.float32)
-    mask = np.zeros((out_h, out_w), np.float32)
-    ys, xs = np.mgrid[0:out_h, 0:out_w].astype(np.float32)
-    order = np.argsort(-(boxes[:, 2] * boxes[:, 3])) if len(boxes) else np.zeros(0, np.int64)
-    for i in order:  # large first: a small object's regression wins its cell
-        x, y, w, h = boxes[i]
-        if w < min_box_px or h < min_box_px:
-            continue
-        cx, cy = (x + w / 2) / STRIDE, (y + h / 2) / STRIDE
-        col, row = int(cx), int(cy)
-        if not (0 <= col < out_w and 0 <= row < out_h):
-            continue
-        sigma = max(0.5, 0.15 * math.sqrt(w * h) / STRIDE)
-        g = np.exp(-((xs - (col + 0.5)) ** 2 + (ys - (row + 0.5)) ** 2) / (2 * sigma * sigma))
-        heat[labels[i]] = np.maximum(heat[labels[i]], g)
-        heat[labels[i], row, col] = 1.0
-        offset[:, row, col] = (cx - col, cy - row)
-        logsize[:, row, col] = (math.log(w), math.log(h))
-        mask[row, col] = 1.0
-    return heat, offset, logsize, mask
-
-
-def _crop(
-    image: np.ndarray, boxes: np.ndarray, labels: np.ndarray, *, size: int, rng: np.random.Generator, around: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    h, w = image.shape[:2]
-    if around and len(boxes):
-        bx, by, bw, bh = boxes[rng.integers(len(boxes))]
-        cx = bx + bw / 2 + rng.uniform(-0.4, 0.4) * size
-        cy = by + bh / 2 + rng.uniform(-0.4, 0.4) * size
-        x0 = int(np.clip(cx - size / 2, 0, w - size))
-        y0 = int(np.clip(cy - size / 2, 0, h - size))
-    else:
-        x0, y0 = int(rng.integers(0, w - size + 1)), int(rng.integers(0, h - size + 1))
-    crop = image[y0 : y0 + size, x0 : x0 + size]
-    b = boxes.copy()
-    b[:, 0] -= x0
-    b[:, 1] -= y0
-    # clip to the crop; keep a box whose visible part keeps at least half of it
-    x1 = np.clip(b[:, 0] + b[:, 2], 0, size)
-    y1 = np.clip(b[:, 1] + b[:, 3], 0, size)
-    nx0, ny0 = np.clip(b[:, 0], 0, size), np.clip(b[:, 1], 0, size)
-    area = b[:, 2] * b[:, 3]
-    new = np.stack([nx0, ny0, x1 - nx0, y1 - ny0], axis=1)
-    keep = (new[:, 2] > 0) & (new[:, 3] > 0) & (new[:, 2] * new[:, 3] >= 0.5 * np.maximum(area, 1e-6))
-    return crop, new[keep], labels[keep]
-
-
 def _focal(pred_logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     pred = torch.sigmoid(pred_logits).clamp(1e-4, 1 - 1e-4)
     pos = target.eq(1.0).float()
@@ -153,7 +96,7 @@ def _batch(
         around = bool(rng.random() < cfg.object_crop_fraction) and bool(with_objects)
         i = int(rng.choice(with_objects)) if around else int(rng.integers(len(data.frames)))
         f = data.frames[i]
-        crop, boxes, labels = _crop(images[i], f.boxes, f.labels, size=cfg.crop_px, rng=rng, around=around)
+        crop, boxes, labels = crop_boxes(images[i], f.boxes, f.labels, size=cfg.crop_px, rng=rng, around=around)
         img = crop.astype(np.float32) / 255.0
         if rng.random() < 0.5:
             img = img[:, ::-1]
