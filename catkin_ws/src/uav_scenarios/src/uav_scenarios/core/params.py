@@ -302,11 +302,6 @@ def needs_terrain_model(scenario: Scenario) -> bool:
     return scenario.perception.geolocation.terrain_model
 
 
-def uses_learned_detector(scenario: Scenario) -> bool:
-    """The run starts the learned detector (``detector``)."""
-    return scenario.perception.detector is DetectorKind.LEARNED
-
-
 def uses_stand_in(scenario: Scenario) -> bool:
     """The run starts the stand-in detector (``degraded_detector``)."""
     return scenario.perception.detector is DetectorKind.DEGRADED_TRUTH
