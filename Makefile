@@ -5,7 +5,7 @@ SHELL := /bin/bash
 .DEFAULT_GOAL := help
 IN_ENV := scripts/in_env
 
-.PHONY: help setup apt venv build demo test test-unit test-ros test-e2e check lint typecheck format bench campaign-smoke campaign-loiter docker-build docker-run clean distclean
+.PHONY: help setup apt venv build demo test test-unit test-ros test-e2e check lint typecheck format bench train-detector campaign-smoke campaign-loiter docker-build docker-run clean distclean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -52,6 +52,12 @@ typecheck: setup
 
 bench: setup ## run every benchmark; appends JSON lines to bench/results/latest.jsonl
 	@$(IN_ENV) python bench/run.py
+
+train-detector: setup ## opt-in: install torch (CPU) + onnx, generate the training data, train and score the shipped detector (~40 min on 2 cores) -> runs/detector
+	@$(IN_ENV) python -m pip --disable-pip-version-check -q install -r requirements-train.txt
+	@nice -n 10 $(IN_ENV) uav-dataset generate config/datasets/detector_train.yaml --out datasets/detector_train --workers 2
+	@nice -n 10 $(IN_ENV) uav-train-detector datasets/detector_train --out runs/detector --steps 1400 --crop-px 192 --batch-size 16 --seed 0 --threads 2
+	@echo "trained: runs/detector/model.onnx (eval.json, curve.png); to ship it: cp runs/detector/model.onnx catkin_ws/src/uav_perception/models/uav_detector.onnx"
 
 campaign-smoke: setup ## the CI-sized campaign (4 short runs) on an embedded Dask cluster -> runs/campaigns/smoke
 	@$(IN_ENV) uav-campaign run config/campaigns/smoke.yaml --out runs/campaigns/smoke

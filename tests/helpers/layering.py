@@ -149,7 +149,10 @@ def project_packages(repo: Path) -> list[Package]:
     perception = Package(
         "uav_perception",
         src,
-        frozenset({"uav_common", *NUMERIC, *ROS_COMMON, "tf2_ros", "vision_msgs"}),
+        # onnxruntime runs the learned detector (shell/); torch and onnx train and export it (training/, the
+        # opt-in requirements-train.txt); pycocotools and matplotlib score and plot a trained model (training/)
+        frozenset({"uav_common", *NUMERIC, *ROS_COMMON, "tf2_ros", "vision_msgs", "onnxruntime"})
+        | {"torch", "onnx", "pycocotools", "matplotlib"},
         pkg,
     )
     src, pkg = catkin("uav_scenarios")

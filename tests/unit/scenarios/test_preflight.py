@@ -69,3 +69,33 @@ def test_uav_run_refuses_before_making_anything(tmp_path: Path, capsys: pytest.C
     assert main([str(path), "--runs-dir", str(runs)]) == 2
     assert "cameras.nadir.mount" in capsys.readouterr().err
     assert not list(runs.iterdir())
+
+
+def _learned(tmp_path: Path, model: str) -> Path:
+    data = yaml.safe_load(LOITER.read_text())
+    data["world"] = {"config": str(REPO / "config" / "worlds" / "small.yaml"), "size_m": 400.0}
+    data["perception"] = {"detector": "learned", "model": model, "camera": "forward"}
+    path = tmp_path / "learned.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_learned_detectors_model_is_loaded_before_anything_starts(tmp_path: Path) -> None:
+    """A missing, corrupt or wrong-shape model is a configuration error of the run (exit 2 from uav-run), naming
+    the scenario and the model file; a good one (relative to the scenario file) passes."""
+    from helpers.onnx_models import constant_detector  # noqa: PLC0415
+
+    path = _learned(tmp_path, "models/missing.onnx")
+    with pytest.raises(
+        ScenarioConfigError, match=rf"{path}: perception.detector learned: .*models/missing.onnx: no such"
+    ):
+        check_node_settings(load_scenario(path))
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "corrupt.onnx").write_bytes(b"\x00" * 64)
+    with pytest.raises(ScenarioConfigError, match=r"corrupt\.onnx: not a loadable ONNX model"):
+        check_node_settings(load_scenario(_learned(tmp_path, "models/corrupt.onnx")))
+    constant_detector(tmp_path / "models" / "wrong.onnx", [[1, 2, 3, 4, 5, 6]], output_shape=[1, 6])
+    with pytest.raises(ScenarioConfigError, match=r"wrong.onnx: output 'output0' is tensor\(float\) \[1, 6\]"):
+        check_node_settings(load_scenario(_learned(tmp_path, "models/wrong.onnx")))
+    constant_detector(tmp_path / "models" / "good.onnx", [[100, 100, 20, 40, 0.9, 0.1]])
+    check_node_settings(load_scenario(_learned(tmp_path, "models/good.onnx")))

@@ -202,6 +202,11 @@ def test_the_detector_under_test_and_its_topics(tmp_path: Path) -> None:
     stand_in = load_scenario(path).perception
     assert stand_in.boxes_topic == "/degraded_detector/detections"
     assert stand_in.degraded == {"seed": 4}
+    learned = load_scenario(REPO / "config/scenarios/sar_learned_detector.yaml")
+    assert learned.perception.detector is DetectorKind.LEARNED
+    assert (learned.perception.boxes_topic, learned.perception.source) == ("/detector/detections", "learned")
+    assert learned.world.seed == 7  # held out: the detector's training worlds are 11-16
+    assert "/detector/detections" in recorded_topics(learned)
 
 
 @pytest.mark.parametrize(
@@ -211,6 +216,7 @@ def test_the_detector_under_test_and_its_topics(tmp_path: Path) -> None:
         ("detector: ground_truth", "external needs detector_topic"),
         ("score_threshold: 0.5", "score_threshold must be within"),
         ("camera: forward\n  score", "detector_topic is for detector: external"),
+        ("camera: forward\n  score_", "model is for detector: learned, not ground_truth"),
     ],
 )
 def test_bad_perception_sections_say_what_to_do(tmp_path: Path, edit: str, match: str) -> None:
@@ -220,6 +226,7 @@ def test_bad_perception_sections_say_what_to_do(tmp_path: Path, edit: str, match
         "detector: ground_truth": "detector: external",
         "score_threshold: 0.5": "score_threshold: 1.5",
         "camera: forward\n  score": "camera: forward\n  detector_topic: /mine\n  score",
+        "camera: forward\n  score_": "camera: forward\n  model: m.onnx\n  score_",
     }[edit]
     assert edit in text
     path = tmp_path / "bad.yaml"

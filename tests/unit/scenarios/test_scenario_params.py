@@ -146,7 +146,7 @@ def test_scenario_params_cli_prints_yaml_or_fails(tmp_path: Path) -> None:
 
 def test_detector_geolocator_and_tracker_settings(tmp_path: Path) -> None:
     from uav_common.ros.params import parse_node_params  # noqa: PLC0415
-    from uav_perception.ros.params import DegradedDetectorParams, GeolocatorParams  # noqa: PLC0415
+    from uav_perception.ros.params import DegradedDetectorParams, DetectorParams, GeolocatorParams  # noqa: PLC0415
     from uav_scenarios.ros.params import TrackerParams  # noqa: PLC0415
 
     sar = load_scenario(REPO / "config/scenarios/search_and_rescue.yaml")
@@ -177,6 +177,11 @@ def test_detector_geolocator_and_tracker_settings(tmp_path: Path) -> None:
     assert geo["detector"] == "degraded_truth"
     degraded = parse_node_params(DegradedDetectorParams, node_params(stand_in, "degraded_detector"), node="x")
     assert (degraded.degrade.seed, degraded.degrade.jitter_px) == (9, 1.0)
+    path.write_text(text.replace("detector: ground_truth", "detector: learned\n  model: mine/m.onnx"))
+    learned = load_scenario(path)
+    assert node_params(learned, "geolocator", ctx)["detections"] == "/detector/detections"
+    det = parse_node_params(DetectorParams, node_params(learned, "detector", ctx), node="detector")
+    assert (det.model, det.image, det.threads) == (str(tmp_path / "mine/m.onnx"), "/cameras/forward/color/image_raw", 1)
 
 
 def test_lockstep_runs_give_every_timeout_a_wall_clock_floor(tmp_path: Path) -> None:

@@ -17,6 +17,8 @@ __all__ = [
     "DepthInputError",
     "DetectionError",
     "DetectionInputError",
+    "ModelFileError",
+    "ModelFormatError",
     "PerceptionConfigError",
     "PerceptionError",
     "TerrainFileError",
@@ -53,3 +55,11 @@ class DetectionInputError(DetectionError):
 
 class TerrainFileError(DetectionError, ResourceError):
     """A terrain model (DEM) file is missing, unreadable or malformed (the message names it)."""
+
+
+class ModelFileError(DetectionError, ResourceError):
+    """A detector model file is missing, unreadable or not a model the runtime can load (the message names it)."""
+
+
+class ModelFormatError(ModelFileError):
+    """A detector model loads but its inputs or outputs are not the documented format (docs/detector.md)."""

@@ -18,10 +18,12 @@ from uav_common.paths import config_file
 from uav_common.ros.params import load_section
 from uav_perception.core.detection.degrade import DegradeConfig
 from uav_perception.core.detection.geolocation import GeolocationConfig
+from uav_perception.core.detection.learned import DecodeConfig
 from uav_perception.errors import PerceptionConfigError
 
 __all__ = [
     "DegradedDetectorParams",
+    "DetectorParams",
     "EstimatorParams",
     "EvaluatorParams",
     "GeolocatorParams",
@@ -137,3 +139,28 @@ class DegradedDetectorParams:
     camera_info: str = ""
     classes: str = ""
     degrade: DegradeConfig = field(default_factory=DegradeConfig)
+
+
+@dataclass(frozen=True)
+class DetectorParams:
+    """``detector``'s private parameters (the learned detector: docs/detector.md)."""
+
+    #: The ONNX model file (the format of ``uav_perception.core.detection.learned``); "" = the shipped
+    #: ``uav_perception/models/uav_detector.onnx``.
+    model: str = ""
+    camera: str = "forward"
+    #: ``sensor_msgs/Image`` topic ("" = ``/cameras/<camera>/color/image_raw``).
+    image: str = ""
+    #: Class map ("" = ``config/detection_classes.yaml``): the model's ``uav_classes`` names -> class ids.
+    classes: str = ""
+    #: onnxruntime intra-op threads (the target: >= 10 Hz at 640x480 on one core).
+    threads: int = 1
+    decode: DecodeConfig = field(default_factory=DecodeConfig)
+
+    def __post_init__(self) -> None:
+        if not self.camera:
+            msg = "~camera must name the camera"
+            raise ValueError(msg)
+        if not 1 <= self.threads <= 64:
+            msg = f"~threads must be within [1, 64], got {self.threads}"
+            raise ValueError(msg)

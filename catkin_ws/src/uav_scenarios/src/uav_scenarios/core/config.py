@@ -286,7 +286,8 @@ class SearchSpec:
         if self.detection_topic is not None or self.camera is not None:
             msg = (
                 "search.detection_topic and search.camera have moved: set perception.detector "
-                "(ground_truth | degraded_truth | external, with perception.detector_topic) and perception.camera "
+                "(ground_truth | degraded_truth | learned | external, with perception.detector_topic) and "
+                "perception.camera "
                 "(docs/scenarios.md); the detector's output is vision_msgs/Detection2DArray"
             )
             raise ValueError(msg)
@@ -308,6 +309,9 @@ class DetectorKind(enum.Enum):
     DEGRADED_TRUTH = "degraded_truth"
     #: A detector you start yourself, publishing on ``perception.detector_topic``.
     EXTERNAL = "external"
+    #: The learned detector (``uav_perception``'s ``detector`` node) running ``perception.model`` (an ONNX file;
+    #: "" = the shipped ``uav_detector.onnx``, trained here by ``uav-train-detector``) on the camera's images.
+    LEARNED = "learned"
 
 
 @dataclass(frozen=True)
@@ -339,6 +343,9 @@ class PerceptionSpec:
     score_threshold: float = 0.5
     #: ``degraded_truth`` only: ``uav_perception.core.detection.degrade.DegradeConfig`` keys (seed, miss rates...).
     degraded: dict[str, Any] = field(default_factory=dict)
+    #: ``learned`` only: the ONNX model file ("" = the shipped one; a relative path is relative to the scenario
+    #: file's folder). ``uav-run`` loads and checks it before anything starts.
+    model: str = ""
     geolocation: GeolocationSpec = field(default_factory=GeolocationSpec)
 
     def __post_init__(self) -> None:
@@ -350,6 +357,9 @@ class PerceptionSpec:
             raise ValueError(msg)
         if self.detector is not DetectorKind.EXTERNAL and self.detector_topic:
             msg = f"detector_topic is for detector: external; {self.detector.value} has its own topic"
+            raise ValueError(msg)
+        if self.model and self.detector is not DetectorKind.LEARNED:
+            msg = f"model is for detector: learned, not {self.detector.value}"
             raise ValueError(msg)
         if self.degraded and self.detector is not DetectorKind.DEGRADED_TRUTH:
             msg = "degraded settings are for detector: degraded_truth"
@@ -365,6 +375,8 @@ class PerceptionSpec:
             return f"/detections/{self.camera}/ground_truth"
         if self.detector is DetectorKind.DEGRADED_TRUTH:
             return "/degraded_detector/detections"
+        if self.detector is DetectorKind.LEARNED:
+            return "/detector/detections"
         return self.detector_topic
 
     @property
@@ -803,6 +815,9 @@ def effective_yaml(scenario: Scenario, note: str = "") -> str:
     data = to_mapping(scenario)
     data.pop("source", None)
     data["world"]["config"] = str(scenario.world_config_path)
+    model = scenario.perception.model
+    if model and not Path(model).expanduser().is_absolute() and scenario.source is not None:
+        data["perception"]["model"] = str(scenario.source.parent / model)  # a run folder's copy loads anywhere
     data["stress"] = []  # already laid over it (stress_applied says which): never twice
     header = f"# Effective scenario of a run (from {scenario.source}{note}).\n"
     return header + yaml.safe_dump(data, sort_keys=False)

@@ -247,6 +247,23 @@ def degraded_detector(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     }
 
 
+def detector(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The learned detector on the detector camera's colour images: the scenario's model ("" = the shipped one;
+    relative to the scenario file's folder). It passes on boxes scoring at least 0.2, at most 30 a frame (the
+    node's defaults, 0.05 and 100, sent ~90 boxes a frame of the shipped model to the geolocator, which placed
+    each one and fell behind: a run scores AP over what is passed on, so the PR curve ends at 0.2)."""
+    perception = scenario.perception
+    model = perception.model
+    if model and not model.startswith(("/", "~")) and scenario.source is not None:
+        model = str(scenario.source.parent / model)
+    return {
+        "camera": perception.camera,
+        "image": f"/cameras/{perception.camera}/color/image_raw",
+        "model": model,
+        "decode": {"score_threshold": min(0.2, perception.score_threshold), "max_detections": 30},
+    }
+
+
 #: Node name -> settings function. ``node_params`` merges ``scenario.node_params[name]`` over it.
 NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "goal_selector": goal_selector,
@@ -261,6 +278,7 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "tracker": tracker,
     "geolocator": geolocator,
     "degraded_detector": degraded_detector,
+    "detector": detector,
 }
 
 

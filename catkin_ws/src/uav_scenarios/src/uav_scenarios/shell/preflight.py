@@ -3,7 +3,8 @@
 A scenario's ``node_params.sim_bridge`` and ``node_params.sitl`` reach those programs only when a run starts
 them; a key they refuse used to show as the run (or every run of a campaign) dying seconds into its launch.
 ``uav-run`` and ``uav-campaign`` call :func:`check_node_settings` first, so the same mistake is a configuration
-error (exit 2) naming the scenario file, the node and the key, and nothing is started or written.
+error (exit 2) naming the scenario file, the node and the key, and nothing is started or written. A learned
+detector's model file is loaded and checked the same way.
 
 The bridge's settings are assembled exactly as the node assembles them (``uav_sim_bridge.config.shipped_bridge_config``
 with ``config/robot.yaml``); the SITL's by ``uav-sitl --print-config`` with the run's ``--set`` overrides (the
@@ -16,7 +17,10 @@ import subprocess
 from collections.abc import Iterable
 
 from uav_common.config import ConfigError
-from uav_scenarios.core.config import Scenario
+from uav_perception.errors import ModelFileError
+from uav_perception.shell.models import resolve_model
+from uav_perception.shell.onnx_detector import OnnxDetector
+from uav_scenarios.core.config import DetectorKind, Scenario
 from uav_scenarios.core.launch import flatten_settings, yaml_scalar
 from uav_scenarios.core.params import node_params
 from uav_scenarios.errors import ScenarioConfigError, ScenarioError
@@ -39,6 +43,7 @@ def check_node_settings(scenario: Scenario, *, where: str = "") -> None:
     label = where or str(scenario.source)
     _check_bridge(scenario, label)
     _check_sitl(scenario, label)
+    _check_detector(scenario, label)
 
 
 def check_runs(scenarios: Iterable[tuple[str, Scenario]]) -> int:
@@ -52,7 +57,15 @@ def check_runs(scenarios: Iterable[tuple[str, Scenario]]) -> int:
     """
     seen: set[str] = set()
     for label, scenario in scenarios:
-        key = repr((scenario.autopilot, scenario.node_params.get("sim_bridge"), scenario.node_params.get("sitl")))
+        key = repr(
+            (
+                scenario.autopilot,
+                scenario.node_params.get("sim_bridge"),
+                scenario.node_params.get("sitl"),
+                scenario.perception.detector,
+                node_params(scenario, "detector"),
+            )
+        )
         if key in seen:
             continue
         seen.add(key)
@@ -66,6 +79,19 @@ def _check_bridge(scenario: Scenario, label: str) -> None:
         shipped_bridge_config(node_params(scenario, "sim_bridge"), source=source)
     except (ConfigError, SimBridgeError, ScenarioError, ValueError) as err:
         msg = f"the sim bridge would refuse this run's settings: {err}"
+        raise ScenarioConfigError(msg) from err
+
+
+def _check_detector(scenario: Scenario, label: str) -> None:
+    """A learned detector's model is loaded and checked as the node will (a missing, corrupt or wrong-format
+    file names the file and what was expected)."""
+    if scenario.perception.detector is not DetectorKind.LEARNED:
+        return
+    model = str(node_params(scenario, "detector").get("model", ""))
+    try:
+        OnnxDetector(resolve_model(model), threads=1)
+    except ModelFileError as err:
+        msg = f"{label}: perception.detector learned: {err}"
         raise ScenarioConfigError(msg) from err
 
 
