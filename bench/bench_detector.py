@@ -31,13 +31,13 @@ from typing import Any
 import numpy as np
 from benchlib import REPO, record
 
-from uav_perception.core.detection.boxes import Box, center_to_edges
+from uav_perception.core.detection.boxes import Box
 from uav_perception.core.detection.degrade import DegradeConfig, degrade, frame_rng
 from uav_perception.core.detection.learned import letterbox
 from uav_perception.shell.models import resolve_model
 from uav_perception.shell.onnx_detector import OnnxDetector
 from uav_perception.training.data import DatasetSplit, load_split
-from uav_perception.training.evaluate import SIZE_BINS, coco_scores, detect_split
+from uav_perception.training.evaluate import SIZE_BINS, coco_detection, coco_scores, detect_split
 
 DATASET = REPO / "datasets" / "detector_heldout"
 CONFIG = REPO / "config" / "datasets" / "detector_heldout.yaml"
@@ -72,17 +72,8 @@ def degraded_detections(data: DatasetSplit) -> list[dict[str, Any]]:
             for (x, y, w, h), c in zip(f.boxes, f.labels, strict=True)
         ]
         rng = frame_rng(cfg.seed, f.image_id, "camera_forward_optical")
-        for d in degrade(truth, width_px=f.width, height_px=f.height, class_ids=ids, cfg=cfg, rng=rng):
-            u0, v0, u1, v1 = center_to_edges(d.center_u, d.center_v, d.size_u, d.size_v)
-            col, score = d.hypotheses[0]
-            out.append(
-                {
-                    "image_id": f.image_id,
-                    "category_id": col_to_cat[col],
-                    "bbox": [u0 + 0.5, v0 + 0.5, u1 - u0, v1 - v0],
-                    "score": score,
-                }
-            )
+        dets = degrade(truth, width_px=f.width, height_px=f.height, class_ids=ids, cfg=cfg, rng=rng)
+        out += [coco_detection(f.image_id, d, col_to_cat) for d in dets]
     return out
 
 

@@ -125,6 +125,35 @@ class GpsReport:
     vel_e_mps: float
 
 
+class _Intermittent:
+    """A sensor that drops out and comes back (FAILURE_TYPE INTERMITTENT): fixes and gaps of exponential length,
+    :data:`INTERMITTENT_FIX_MEAN_S` and :data:`INTERMITTENT_GAP_MEAN_S` on average, drawn from ``rng``."""
+
+    __slots__ = ("gaps", "in_gap", "rng", "until_s")
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.in_gap = False
+        self.until_s = 0.0
+        #: Gaps so far.
+        self.gaps = 0
+
+    def restart(self, t_s: float) -> None:
+        """A new fault (or OK): a fix now, the next phase drawn at once."""
+        self.in_gap = False
+        self.until_s = t_s
+
+    def step(self, t_s: float) -> bool:
+        """Whether the sensor is in a gap at ``t_s`` (called every update while the fault is in force)."""
+        if t_s >= self.until_s:
+            self.in_gap = not self.in_gap
+            mean = INTERMITTENT_GAP_MEAN_S if self.in_gap else INTERMITTENT_FIX_MEAN_S
+            self.until_s = t_s + float(self.rng.exponential(mean))
+            if self.in_gap:
+                self.gaps += 1
+        return self.in_gap
+
+
 class Estimator:
     """Produces the :class:`LocalState` the autopilot flies on and reports."""
 
@@ -172,16 +201,13 @@ class Estimator:
         self.gps_report: GpsReport | None = None
         #: STUCK: samples of the frozen fix the innovation gate rejected so far.
         self.rejected_samples = 0
-        #: INTERMITTENT: fix gaps so far.
-        self.gaps = 0
         self._fault_seen = 0
         self._gps_failed_since: float | None = None
         self._dead_reckoned: tuple[float, float] | None = None
         self._stuck_fix: tuple[float, float] | None = None
         self._stuck_pos = (0.0, 0.0)
         self._stuck_fused_t = 0.0
-        self._in_gap = False
-        self._phase_until = 0.0
+        self._gps_gaps = _Intermittent(self._fault_rng)
         self._init_sensor_faults(noise)
 
     def _init_sensor_faults(self, noise: NoiseModel | None) -> None:
@@ -202,7 +228,6 @@ class Estimator:
         #: False while the compass publishes nothing (OFF, a gap of INTERMITTENT).
         self.mag_reporting = True
         self.mag_rejected_samples = 0
-        self.mag_gaps = 0
         self._mag_on = False
         self._mag_seen = 0
         self._mag_fused = True
@@ -210,13 +235,11 @@ class Estimator:
         self._mag_drift = 0.0
         self._mag_stuck_yaw = 0.0
         self._mag_said = False
-        self._mag_in_gap = False
-        self._mag_phase_until = 0.0
+        self._mag_gaps = _Intermittent(self._mag_rng)
         #: The altitude (m AMSL) whose pressure the barometer reports when it is not the estimate's.
         self.baro_report_alt_m: float | None = None
         self.baro_reporting = True
         self.baro_rejected_samples = 0
-        self.baro_gaps = 0
         self._baro_on = False
         self._baro_seen = 0
         self._baro_fused = True
@@ -226,8 +249,20 @@ class Estimator:
         self._hgt_err = 0.0
         self._baro_stuck_d = 0.0
         self._baro_said = False
-        self._baro_in_gap = False
-        self._baro_phase_until = 0.0
+        self._baro_gaps = _Intermittent(self._baro_rng)
+
+    @property
+    def gaps(self) -> int:
+        """GPS INTERMITTENT: fix gaps so far."""
+        return self._gps_gaps.gaps
+
+    @property
+    def mag_gaps(self) -> int:
+        return self._mag_gaps.gaps
+
+    @property
+    def baro_gaps(self) -> int:
+        return self._baro_gaps.gaps
 
     @property
     def mag_healthy(self) -> bool:
@@ -242,7 +277,7 @@ class Estimator:
     @property
     def gps_ok(self) -> bool:
         fault = self.gps_fault
-        if fault in (_OFF, _GARBAGE) or (fault == _INTERMITTENT and self._in_gap):
+        if fault in (_OFF, _GARBAGE) or (fault == _INTERMITTENT and self._gps_gaps.in_gap):
             return False
         return self._last_t is None or self._last_t >= self._dropout_until
 
@@ -321,8 +356,7 @@ class Estimator:
             self._gps_failed_since = None
             self._stuck_fix = None
             self.gps_report = None
-            self._in_gap = False
-            self._phase_until = t_s
+            self._gps_gaps.restart(t_s)
         if fault == _STUCK:
             return self._stuck(t_s, est, dt)
         if fault == _GARBAGE:
@@ -336,13 +370,7 @@ class Estimator:
             )
             return self._without_gps(t_s, est, dt)
         if fault == _INTERMITTENT:
-            if t_s >= self._phase_until:
-                self._in_gap = not self._in_gap
-                mean = INTERMITTENT_GAP_MEAN_S if self._in_gap else INTERMITTENT_FIX_MEAN_S
-                self._phase_until = t_s + float(self._fault_rng.exponential(mean))
-                if self._in_gap:
-                    self.gaps += 1
-            if self._in_gap:
+            if self._gps_gaps.step(t_s):
                 return self._without_gps(t_s, est, dt)
             self._gps_failed_since = None
             return est
@@ -353,7 +381,7 @@ class Estimator:
         if self._fault_seen:
             self._fault_seen = 0
             self.gps_report = None
-            self._in_gap = False
+            self._gps_gaps.in_gap = False
 
     def update(self, truth: VehicleState, truth_ned_m: tuple[float, float, float] | None = None) -> LocalState:
         """The estimate for ``truth``; ``truth_ned_m`` is its LOCAL_NED position if already known."""
@@ -475,8 +503,7 @@ class Estimator:
         self._mag_seen = fault
         self._mag_said = False
         self.mag_report_body = None
-        self._mag_in_gap = False
-        self._mag_phase_until = truth.t_s
+        self._mag_gaps.restart(truth.t_s)
         if not fault:
             return
         if not self._mag_on:  # take over from the compass's present error
@@ -504,15 +531,8 @@ class Estimator:
                 return True, False
             self._mag_err += min(1.0, dt / MAG_FUSION_TIME_CONSTANT_S) * innovation
             return True, True
-        if fault == _INTERMITTENT:
-            if truth.t_s >= self._mag_phase_until:
-                self._mag_in_gap = not self._mag_in_gap
-                mean = INTERMITTENT_GAP_MEAN_S if self._mag_in_gap else INTERMITTENT_FIX_MEAN_S
-                self._mag_phase_until = truth.t_s + float(self._mag_rng.exponential(mean))
-                if self._mag_in_gap:
-                    self.mag_gaps += 1
-            if self._mag_in_gap:
-                return False, False
+        if fault == _INTERMITTENT and self._mag_gaps.step(truth.t_s):
+            return False, False
         return True, True
 
     def _baro_update(self, t_s: float, est: LocalState, dt: float) -> float:
@@ -548,8 +568,7 @@ class Estimator:
         self._baro_latched = False
         self._baro_rejected_since = None
         self.baro_report_alt_m = None
-        self._baro_in_gap = False
-        self._baro_phase_until = t_s
+        self._baro_gaps.restart(t_s)
         if not fault:  # baro fusion restarts as the height reference: EKF2 resets the height to it
             self._baro_on = False
             self._baro_fused = True
@@ -582,15 +601,8 @@ class Estimator:
                 self._baro_latched = True  # EKF2: "stopping baro height fusion, fusion failing"; baro_fault
                 self.messages.append("EKF2: baro fusion failing, height from GNSS")
             return True, False, 0.0
-        if fault == _INTERMITTENT:
-            if t_s >= self._baro_phase_until:
-                self._baro_in_gap = not self._baro_in_gap
-                mean = INTERMITTENT_GAP_MEAN_S if self._baro_in_gap else INTERMITTENT_FIX_MEAN_S
-                self._baro_phase_until = t_s + float(self._baro_rng.exponential(mean))
-                if self._baro_in_gap:
-                    self.baro_gaps += 1
-            if self._baro_in_gap:
-                return False, False, 0.0
+        if fault == _INTERMITTENT and self._baro_gaps.step(t_s):
+            return False, False, 0.0
         return True, True, 0.0
 
     def _step_noise(self, dt: float, nm: NoiseModel) -> None:

@@ -19,11 +19,11 @@ import numpy as np
 from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
-from uav_perception.core.detection.boxes import center_to_edges
+from uav_perception.core.detection.boxes import RawDetection, center_to_edges
 from uav_perception.shell.onnx_detector import OnnxDetector
 from uav_perception.training.data import DatasetSplit
 
-__all__ = ["SIZE_BINS", "coco_scores", "detect_split"]
+__all__ = ["SIZE_BINS", "coco_detection", "coco_scores", "detect_split"]
 
 #: ``name -> (min px, max px)`` of ``sqrt(w h)``, half-open.
 SIZE_BINS: dict[str, tuple[float, float]] = {
@@ -35,6 +35,19 @@ SIZE_BINS: dict[str, tuple[float, float]] = {
     ">32": (32.0, 1e5),
     ">=12": (12.0, 1e5),
 }
+
+
+def coco_detection(image_id: int, d: RawDetection, col_to_cat: dict[int, int]) -> dict[str, Any]:
+    """A contract detection (its best hypothesis) as a COCO result: box in pixel-edge coordinates."""
+    u0, v0, u1, v1 = center_to_edges(d.center_u, d.center_v, d.size_u, d.size_v)
+    col, score = d.hypotheses[0]
+    # contract convention (pixel centres) -> COCO pixel edges
+    return {
+        "image_id": image_id,
+        "category_id": col_to_cat[col],
+        "bbox": [u0 + 0.5, v0 + 0.5, u1 - u0, v1 - v0],
+        "score": score,
+    }
 
 
 def detect_split(
@@ -53,18 +66,7 @@ def detect_split(
         t0 = time.perf_counter()
         dets, _ = model.detect(image, list(range(model.num_classes)))
         spent += time.perf_counter() - t0
-        for d in dets:
-            u0, v0, u1, v1 = center_to_edges(d.center_u, d.center_v, d.size_u, d.size_v)
-            col, score = d.hypotheses[0]
-            # contract convention (pixel centres) -> COCO pixel edges
-            out.append(
-                {
-                    "image_id": frame.image_id,
-                    "category_id": col_to_cat[col],
-                    "bbox": [u0 + 0.5, v0 + 0.5, u1 - u0, v1 - v0],
-                    "score": score,
-                }
-            )
+        out += [coco_detection(frame.image_id, d, col_to_cat) for d in dets]
         if progress is not None:
             progress(k + 1)
     return out, spent / max(1, len(data.frames))
