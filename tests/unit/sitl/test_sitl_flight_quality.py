@@ -128,3 +128,40 @@ def test_a_half_turn_while_setting_off_keeps_the_vehicle_level() -> None:
     assert worst_tilt_deg <= max_tilt, f"tilted {worst_tilt_deg:.0f} deg during the turn (limit {max_tilt:g})"
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     assert abs(abs(yaw) - math.pi) < math.radians(5), f"heading {math.degrees(yaw):.0f} deg after 6 s"
+
+
+def test_a_level_vehicle_coasts_to_a_stop_on_rotor_drag_and_stays_where_it_lands() -> None:
+    """PX4's position-loss Descend holds the attitude level with no position control: the vehicle coasts.
+    Rotor drag (linear in the airspeed, as measured on real multicopters) stops it within seconds, not the
+    hundreds of metres quadratic body drag alone allowed; and once down it stays put on its skids."""
+    v = make_vehicle(**{"params.defaults": {"SYS_FAILURE_EN": 1, "MPC_LAND_SPEED": 2.0}})
+    take_off(v, 30.0, settle_s=2.0)
+    ap = v.autopilot
+    sp = Setpoint(pos=(500.0, 0.0, -30.0), yaw_rad=0.0)
+    ap.offboard_setpoint(sp, v.t_s, v.t_s)
+    assert ap.set_mode(FlightMode.OFFBOARD) is MavResult.ACCEPTED
+    t0 = v.t_s
+    while v.t_s - t0 < 12.0:
+        ap.offboard_setpoint(sp, v.t_s, v.t_s)
+        run(v, 0.05)
+    assert ap.inject_failure(4, 1, 0) is MavResult.ACCEPTED  # GPS off: Descend after EKF2_NOAID_TOUT
+    while ap.mode is FlightMode.OFFBOARD and v.t_s - t0 < 20.0:  # the setpoints go on while it dead-reckons
+        ap.offboard_setpoint(sp, v.t_s, v.t_s)
+        run(v, 0.05)
+    assert ap.mode is FlightMode.AUTO_LAND
+    north0 = pos(v)[0]
+    run(v, 1.0)
+    speed0 = pos(v)[0] - north0
+    assert speed0 > 5.0, f"the test needs the vehicle moving when the descent starts ({speed0:.1f} m/s)"
+    run(v, 4.0)
+    north4 = pos(v)[0]
+    run(v, 1.0)
+    speed5 = pos(v)[0] - north4
+    # time constant 3-6 s: the speed falls to exp(-4.5 / tau) of itself between the two 1 s windows
+    assert 0.2 * speed0 < speed5 < 0.5 * speed0, f"{speed0:.2f} m/s slowed to {speed5:.2f} m/s in 4.5 s"
+    run(v, 60.0, until=lambda x: x.autopilot.landed)
+    assert ap.landed
+    assert pos(v)[0] - north0 < 10.0 * speed0, "coasted too far before touchdown"
+    at_touchdown = pos(v)
+    run(v, 5.0)
+    assert math.dist(pos(v)[:2], at_touchdown[:2]) < 0.3, "the landed vehicle slid or rolled on"
