@@ -1,8 +1,8 @@
 """A GPS failure scripted into a scenario, end to end: the failsafe PX4 would trigger, the autonomy standing down.
 
 ``small_gps_fault.yaml``: a loiter on the autopilot's own estimate (``pose_source: autopilot``) with
-``faults: [{at_s: 22, unit: gps, type: off}]``. The mission manager sets ``SYS_FAILURE_EN`` and sends
-``MAV_CMD_INJECT_FAILURE`` over the router at 22 s of run time, as a test rig would. As PX4: the estimate
+``faults: [{at_s: 18, unit: gps, type: off}]``. The mission manager sets ``SYS_FAILURE_EN`` and sends
+``MAV_CMD_INJECT_FAILURE`` over the router at 18 s of run time, as a test rig would. As PX4: the estimate
 dead-reckons for ``EKF2_NOAID_TOUT`` (5 s), then the local position is gone, the position-estimate failsafe
 descends (AUTO.LAND) and lands. The controller yields to it at once (it never commands again), the estimate
 goes stale and the controller says it will not fly on it; the scorer records the fault and all of that.
@@ -33,19 +33,25 @@ def test_gps_off_mid_flight_lands_as_px4_and_the_autonomy_stops_on_the_stale_pos
     (fault,) = m["faults"]
     assert (fault["unit"], fault["type"], fault["instance"], fault["clear"]) == ("gps", "off", 0, False)
     assert fault["result"] == "ACCEPTED", fault
-    assert 22.0 - 1e-6 <= fault["run_t_s"] < 23.0, fault
+    assert 18.0 - 1e-6 <= fault["run_t_s"] < 19.0, fault
     followed = [(c["after_s"], c["what"]) for c in fault["followed"]]
     text = "\n".join(f"{t:6.1f} {w}" for t, w in followed)
 
-    # what PX4 does: 5 s of dead reckoning, then the position-estimate failsafe descends (AUTO.LAND)
+    # what PX4 does: 5 s of dead reckoning, then the position-estimate failsafe descends (AUTO.LAND). The mode
+    # is the one the controller read from the autopilot's 1 Hz HEARTBEAT: up to 1 s after the switch, and on a
+    # loaded 2-core CI machine the lockstep run (about 10x real time) can take another 2 simulated seconds (a
+    # fifth of a wall second) to get it parsed. The ROS clock can trail the SITL's by a few tenths of a second,
+    # hence the lower bound.
     modes = [(t, w) for t, w in followed if w.startswith("autopilot ")]
     assert modes, text
     assert modes[0][1] == "autopilot AUTO.LAND", text
-    assert 4.5 < modes[0][0] < 8.0, text
+    assert 4.5 < modes[0][0] < 9.0, text
     assert all(w == "autopilot AUTO.LAND" for _, w in modes), text  # never back to OFFBOARD
 
     # the autonomy: yields to the failsafe at once and never commands again...
-    ctrl = [(t, w) for t, w in followed if w.startswith("controller ")]
+    # (on a loaded machine the take-off can still be finishing at the fault: the autonomy enters AUTONOMOUS
+    # during the dead reckoning; what matters is what it does once the autopilot has taken over)
+    ctrl = [(t, w) for t, w in followed if w.startswith("controller ") and t >= modes[0][0] - 1e-6]
     assert ctrl, text
     assert ctrl[0][1].startswith("controller LAND: autopilot left OFFBOARD"), text
     assert ctrl[0][0] - modes[0][0] < 1.5, text

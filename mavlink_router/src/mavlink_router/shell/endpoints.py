@@ -35,6 +35,7 @@ from typing import Any, Protocol
 from mavlink_router.core.config import TcpEndpointConfig, UartEndpointConfig, UdpEndpointConfig, UdpMode
 from mavlink_router.core.engine import EndpointStats
 from mavlink_router.errors import SerialUnavailableError
+from uav_common.shell.sockets import connected_to_itself
 
 __all__ = [
     "READ_BUDGET",
@@ -561,6 +562,11 @@ class TcpClientEndpoint(_SocketStream):
         if code != 0:
             self._close_socket()
             self._schedule_retry(os.strerror(code))
+            return
+        if connected_to_itself(sock):
+            # (a SITL still starting would then find its port taken; seen on a loaded machine)
+            self._close_socket()
+            self._schedule_retry("connected to itself (nothing listening on the port yet)")
             return
         self.connected = True
         self.connects += 1

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import select
+import socket
 import struct
 import threading
 import time
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 
 from uav_common.mavlink_parser import reset_parser
+from uav_common.shell.sockets import connected_to_itself
 from uav_scenarios.core.faults import FaultAction, FaultSchedule
 
 __all__ = ["FaultLink", "FaultResult"]
@@ -127,6 +129,11 @@ class FaultLink:
                 )
             except (OSError, mavutil.mavlink.MAVError) as err:
                 self.problem = f"cannot connect to the autopilot at {self.url}: {err}"
+                self._stop.wait(0.5)
+                continue
+            if isinstance(getattr(conn, "port", None), socket.socket) and connected_to_itself(conn.port):
+                conn.close()  # the router's TCP server is not up yet (see connected_to_itself)
+                self.problem = f"the autopilot's router at {self.url} is not listening yet"
                 self._stop.wait(0.5)
                 continue
             self._conn = conn
