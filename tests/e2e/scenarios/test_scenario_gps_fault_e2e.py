@@ -40,12 +40,12 @@ def test_gps_off_mid_flight_lands_as_px4_and_the_autonomy_stops_on_the_stale_pos
     # what PX4 does: 5 s of dead reckoning, then the position-estimate failsafe descends (AUTO.LAND). The mode
     # is the one the controller read from the autopilot's 1 Hz HEARTBEAT: up to 1 s after the switch, and on a
     # loaded 2-core CI machine the lockstep run (about 10x real time) can take another 2 simulated seconds (a
-    # fifth of a wall second) to get it parsed. The ROS clock can trail the SITL's by a few tenths of a second,
-    # hence the lower bound.
+    # fifth of a wall second) to get it parsed. The fault's send time is on the ROS clock, which can trail the
+    # SITL's (idle: a few tenths of a second; 0.6 s once on the loaded CI machine), hence the lower bound.
     modes = [(t, w) for t, w in followed if w.startswith("autopilot ")]
     assert modes, text
     assert modes[0][1] == "autopilot AUTO.LAND", text
-    assert 4.5 < modes[0][0] < 9.0, text
+    assert 3.8 < modes[0][0] < 9.0, text
     assert all(w == "autopilot AUTO.LAND" for _, w in modes), text  # never back to OFFBOARD
 
     # the autonomy: yields to the failsafe at once and never commands again...
