@@ -199,6 +199,14 @@ def test_estimated_depth_feeds_the_map_in_closed_loop(tmp_path: Path) -> None:
                 60.0,
                 procs,
             )
+            # The status of the last of them can come a message later than its metrics.
+            wait_for(
+                "the estimator's status to count them",
+                lambda: topics.snapshot()[1],
+                lambda s: s is not None and s.estimates >= 12,
+                20.0,
+                procs,
+            )
             _, status, inserts = topics.snapshot()
             saved = topics.save_example(run_dir / "example_color_truth_estimate.png")
             gcs.close()

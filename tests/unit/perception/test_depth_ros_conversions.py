@@ -142,3 +142,9 @@ def test_object_list_and_run_log(tmp_path: Path) -> None:
     assert data["frames"] == 3
     assert data["aggregate"]["overall"]["mae_m"] == pytest.approx(0.5)
     assert data["dropped_no_truth"] == 0
+    # a frame evaluated while the node shuts down (after the close) is still logged and summarised
+    log.add(3.0, 0.0, evaluate_depth(gt, gt, cfg))
+    assert len((tmp_path / "run" / "depth_metrics.jsonl").read_text().splitlines()) == 4
+    data = json.loads(summary.read_text())
+    assert data["frames"] == 4
+    assert data["dropped_no_truth"] == 0

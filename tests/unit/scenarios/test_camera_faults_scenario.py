@@ -122,6 +122,10 @@ def test_the_watch_sees_frames_stop_resume_freeze_and_turn_to_noise() -> None:
     assert quiet["frames"] == 0
     assert quiet["rate_before_hz"] == pytest.approx(19 / 4.0)  # 1.2 ... 4.8 s
     assert w.window("nadir", 10.7, 11.2)["noise_frames"] == 2
+    # a fault applied after the state at 4.8 s (a float a hair below the frame's stamp): that frame came before it
+    late = w.window("nadir", 4.8 - 1e-12, 6.1)
+    assert late["frames"] == 0
+    assert late["rate_before_hz"] == pytest.approx(7 / 1.3)  # 3.6 ... 4.8 s
     with pytest.raises(ValueError, match="frozen_after"):
         CameraWatch(frozen_after=1)
 

@@ -202,7 +202,8 @@ class DepthEvaluatorNode:
             return
         stamp_diff_s = abs(header.stamp.to_nsec() - truth_stamp_ns) * 1e-9
         self.evaluated += 1
-        # The run log first: a frame evaluated while the node shuts down is still kept.
+        # The run log first: a frame evaluated while the node shuts down is still kept (the log appends it
+        # after its close too).
         if self.run_log is not None:
             self.run_log.add(header.stamp.to_sec(), stamp_diff_s, evaluation)
             if self.evaluated % _SUMMARY_EVERY == 0:

@@ -7,12 +7,17 @@ Files in the run folder (created if missing):
   ``classes``, ``n_spurious``, ``n_pixels``); NaN is written as ``null``.
 * ``depth_summary.json``: the pixel-weighted aggregate over all frames, rewritten
   by :meth:`DepthRunLog.write_summary` (the node calls it periodically and at shutdown).
+
+The node's callbacks and its shutdown hook run in different threads, so every method takes one lock; a frame
+added after :meth:`DepthRunLog.close` (a callback still running while the node shuts down) is still appended,
+and the summary rewritten with it.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -46,11 +51,12 @@ class DepthRunLog:
         self.camera = camera
         self.config = config
         self.accumulator = DepthAccumulator()
+        self._lock = threading.Lock()
+        self._extra: dict[str, Any] = {}
         self._fh = (run_dir / METRICS_FILE).open("a", encoding="utf-8")
 
     def add(self, stamp_s: float, stamp_diff_s: float, evaluation: DepthEvaluation) -> None:
-        """Log one frame and add it to the aggregate."""
-        self.accumulator.add(evaluation)
+        """Log one frame and add it to the aggregate (after :meth:`close` too: see the module docstring)."""
         record = {
             "stamp_s": stamp_s,
             "camera": self.camera,
@@ -59,18 +65,31 @@ class DepthRunLog:
             "rel_tol": self.config.rel_tol,
             **evaluation.as_dict(),
         }
-        self._fh.write(json.dumps(json_safe(record), allow_nan=False) + "\n")
-        self._fh.flush()
+        line = json.dumps(json_safe(record), allow_nan=False) + "\n"
+        with self._lock:
+            self.accumulator.add(evaluation)
+            if not self._fh.closed:
+                self._fh.write(line)
+                self._fh.flush()
+                return
+            with (self.run_dir / METRICS_FILE).open("a", encoding="utf-8") as fh:
+                fh.write(line)
+            self._write_summary_locked()
 
     def write_summary(self, extra: Mapping[str, Any] | None = None) -> Path:
-        """(Re)write ``depth_summary.json``; returns its path."""
+        """(Re)write ``depth_summary.json`` (``extra``: more keys, kept for later rewrites); returns its path."""
+        with self._lock:
+            self._extra = dict(extra or {})
+            return self._write_summary_locked()
+
+    def _write_summary_locked(self) -> Path:
         summary = {
             "camera": self.camera,
             "frames": self.accumulator.frames,
             "abs_tol_m": self.config.abs_tol_m,
             "rel_tol": self.config.rel_tol,
             "aggregate": self.accumulator.result().as_dict(),
-            **(extra or {}),
+            **self._extra,
         }
         path = self.run_dir / SUMMARY_FILE
         tmp = path.with_suffix(".json.tmp")
@@ -79,5 +98,6 @@ class DepthRunLog:
         return path
 
     def close(self) -> None:
-        """Close the per-frame file."""
-        self._fh.close()
+        """Close the per-frame file (a later :meth:`add` opens it again for its line)."""
+        with self._lock:
+            self._fh.close()

@@ -28,6 +28,11 @@ __all__ = ["NOISE_LEVEL", "CameraFrameSample", "CameraWatch", "noise_level"]
 #: :func:`noise_level` above which a frame is noise: uniform noise scores ~85, rendered scenes ~5-30.
 NOISE_LEVEL = 60.0
 
+#: Stamps this close are the same simulation instant: a frame's stamp goes through ROS time (integer
+#: nanoseconds) and a fault's ``answered_s`` through float arithmetic, so the frame of the very state after which
+#: a fault applies can read a hair later (6.7 against 6.699999999999999).
+SAME_INSTANT_S = 1e-6
+
 
 def noise_level(rgb: npt.NDArray[np.uint8]) -> float:
     """Mean absolute difference of horizontally neighbouring pixel values (0-255) over every 4th row: ~85 for
@@ -119,13 +124,16 @@ class CameraWatch:
 
     def window(self, camera: str, start_s: float, end_s: float) -> dict[str, float | int | str]:
         """The frames of ``camera`` captured in ``(start_s, end_s)``: ``frames``, ``rate_hz``, ``rate_before_hz``
-        (over the same length of time before, at most 10 s), ``distinct_images``, ``noise_frames``."""
+        (over the same length of time before, at most 10 s), ``distinct_images``, ``noise_frames``.
+
+        A frame stamped within :data:`SAME_INSTANT_S` of ``start_s`` is of that instant, so before the window
+        (a fault applies after the state it was taken at)."""
         cam = self._cams.get(camera, _Camera())
         t = np.asarray(cam.times, dtype=np.float64)
-        inside = (t > start_s) & (t < end_s)
+        inside = (t > start_s + SAME_INSTANT_S) & (t < end_s)
         span = max(end_s - start_s, 0.0)
         before_span = min(span, 10.0) if span > 0 else 10.0
-        before = (t > start_s - before_span) & (t <= start_s)
+        before = (t > start_s - before_span) & (t <= start_s + SAME_INSTANT_S)
         digests = {d for d, k in zip(cam.digests, inside, strict=True) if k}
         noise = np.asarray(cam.noise, dtype=np.float64)[inside] if cam.noise else np.zeros(0)
         return {
