@@ -519,6 +519,12 @@ class BridgeEngine:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-effects")
         return self._pool
 
+    def wait_effects(self) -> None:
+        """Wait until the effects thread has finished every frame submitted so far (a benchmark charges this
+        engine for the work it left running)."""
+        if self._pool is not None:
+            self._pool.submit(lambda: None).result()
+
     def close(self) -> None:
         """Stop the effects thread (the renderer is the caller's)."""
         if self._pool is not None:
