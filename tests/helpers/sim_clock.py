@@ -25,7 +25,12 @@ class SimClock:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self._pub.publish(Clock(clock=rospy.Time.from_sec(self.now_s)))
+            try:
+                self._pub.publish(Clock(clock=rospy.Time.from_sec(self.now_s)))
+            except rospy.ROSException:
+                if rospy.is_shutdown():  # the node shut down before stop(): rospy closed the topic
+                    return
+                raise
             self.now_s += self.step_s
             time.sleep(self.step_s)
 
