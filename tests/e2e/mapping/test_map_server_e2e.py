@@ -9,14 +9,13 @@ layers and the export come back identical from the autosave.
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
-from helpers.procs import REPO, Proc, artifacts_dir, roscore
+from helpers.procs import REPO, Proc, artifacts_dir, crash_launched_node, roscore
 
 LAUNCH = REPO / "catkin_ws" / "src" / "uav_mapping" / "launch" / "map_server.launch"
 CLIENT = Path(__file__).resolve().parent / "map_e2e_client.py"
@@ -66,8 +65,7 @@ def test_map_from_rendered_frames_survives_a_crash(backend: str, tmp_path: Path)
             # every frame (the check after the restart compares the maps exactly).
             time.sleep(2.5)
             assert autosave.exists()
-            node.signal(signal.SIGKILL)  # a crash: no clean shutdown
-            node.wait(timeout_s=10.0)
+            crash_launched_node(node, "map_server")  # a crash: no clean shutdown, no final save
         finally:
             node.stop()
         resumed = start_map_server(f"map_server_e2e_{backend}_resumed", env, autosave, backend=backend, resume=True)

@@ -7,6 +7,7 @@ import math
 from unit.sitl.sitl_builders import make_vehicle, pos, run, take_off
 
 from sitl.core.control import Setpoint
+from sitl.core.faults import FailureType, FailureUnit
 from sitl.core.modes import FlightMode
 from sitl.core.protocol import LandedState, MavResult
 
@@ -144,7 +145,8 @@ def test_a_level_vehicle_coasts_to_a_stop_on_rotor_drag_and_stays_where_it_lands
     while v.t_s - t0 < 12.0:
         ap.offboard_setpoint(sp, v.t_s, v.t_s)
         run(v, 0.05)
-    assert ap.inject_failure(4, 1, 0) is MavResult.ACCEPTED  # GPS off: Descend after EKF2_NOAID_TOUT
+    gps_off = ap.inject_failure(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+    assert gps_off is MavResult.ACCEPTED  # Descend after EKF2_NOAID_TOUT
     while ap.mode is FlightMode.OFFBOARD and v.t_s - t0 < 20.0:  # the setpoints go on while it dead-reckons
         ap.offboard_setpoint(sp, v.t_s, v.t_s)
         run(v, 0.05)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 import time
@@ -11,8 +12,10 @@ import pytest
 
 from uav_common.errors import ResourceError
 from uav_common.shell.processes import (
+    PORT_RANGE,
     LoggedProcess,
     descendants,
+    ephemeral_range,
     free_port,
     free_udp_port,
     stop_process_group,
@@ -147,3 +150,18 @@ def test_a_child_told_so_stops_when_its_parent_is_killed(tmp_path: Path) -> None
     parent.wait(5.0)
     assert _gone(child), "the child outlived its SIGKILLed parent"
     assert "KeyboardInterrupt" in (tmp_path / "child.log").read_text()  # it got SIGINT, a clean stop
+
+
+def test_free_ports_lie_below_the_ephemeral_range_so_no_client_can_take_one_as_its_source(tmp_path: Path) -> None:
+    low, high = ephemeral_range()
+    assert 1024 <= low <= high
+    ports = {free_port() for _ in range(20)} | {free_udp_port() for _ in range(20)}
+    assert all(PORT_RANGE[0] <= p < min(PORT_RANGE[1], low) for p in ports), sorted(ports)
+    assert len(ports) > 30  # drawn at random, not handed out in sequence
+    with socket.socket() as taken:  # a port in use is never returned
+        taken.bind(("127.0.0.1", free_port()))
+        assert taken.getsockname()[1] not in {free_port() for _ in range(50)}
+    text = tmp_path / "range"
+    text.write_text("40000\t50000\n")
+    assert ephemeral_range(text) == (40000, 50000)
+    assert ephemeral_range(tmp_path / "missing") == (32768, 60999)

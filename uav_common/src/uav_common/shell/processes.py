@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import random
 import shutil
 import signal
 import socket
@@ -85,8 +86,36 @@ def _stop_orphans(known: dict[int, str], timeout_s: float) -> None:
             time.sleep(0.05)
 
 
+#: Where :func:`free_port` looks first: below the kernel's usual ephemeral range (32768-60999 on Linux).
+PORT_RANGE = (20000, 32768)
+_PORT_RNG = random.SystemRandom()  # not the global generator: a test that seeds it must not make runs collide
+
+
+def ephemeral_range(path: Path = Path("/proc/sys/net/ipv4/ip_local_port_range")) -> tuple[int, int]:
+    """The kernel's ephemeral port range ``(low, high)``, inclusive (Linux's default if it cannot be read)."""
+    try:
+        low, high = (int(v) for v in path.read_text().split()[:2])
+    except (OSError, ValueError):
+        return 32768, 60999
+    return low, high
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    """A currently free localhost port (TCP by default, UDP with ``socket.SOCK_DGRAM``)."""
+    """A currently free localhost port (TCP by default, UDP with ``socket.SOCK_DGRAM``), outside the kernel's
+    ephemeral range when it can be: a client that retries a port inside that range while its server is still
+    starting can be handed that very port as its own source and connect to itself (see
+    :func:`uav_common.shell.sockets.connected_to_itself`); a port below the range cannot be a source port.
+    Falls back to a port the kernel picks when no port of :data:`PORT_RANGE` below the range is free."""
+    low, _ = ephemeral_range()
+    top = min(PORT_RANGE[1], low)
+    for _ in range(100 if top > PORT_RANGE[0] else 0):
+        port = _PORT_RNG.randrange(PORT_RANGE[0], top)
+        with socket.socket(socket.AF_INET, kind) as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, kind) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
