@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -99,7 +100,8 @@ def test_detector_under_test_counts_and_context() -> None:
         t = 31.0 + 0.2 * k
         truth = DetectionFrame(t, "forward", "ground_truth", (person(10.0), person(60.0, (300, 100, 320, 150), 43)))
         scorer.add_detections(truth, is_truth=True)
-        hyp_dets = (person(10.0, iid=0),) if k != 2 else ()
+        # the detector's range is its geolocator's estimate (75 m): the first detection reports the true one
+        hyp_dets = (dataclasses.replace(person(10.0, iid=0), range_m=75.0),) if k != 2 else ()
         if k == 4:
             hyp_dets += (person(99.0, (500, 400, 510, 420), 0),)
         scorer.add_detections(DetectionFrame(t, "forward", "yolo", hyp_dets), is_truth=False)

@@ -596,7 +596,8 @@ class RunScorer:
             if self._first_detection_any is None:
                 self._first_detection_any = _FirstDetection(truth.t_s, t_det.range_m)
             if self.person_id and t_det.instance_id == self.person_id and self._first_person_detected is None:
-                self._first_person_detected = _FirstDetection(truth.t_s, operating[j].range_m)
+                # the person's true range then (the detector's own is its geolocator's estimate)
+                self._first_person_detected = _FirstDetection(truth.t_s, t_det.range_m)
                 self._events.append((truth.t_s, f"person detected at {t_det.range_m:.0f} m"))
         for i in missed:
             self._count(self._object_context(truth.detections[i], frame_ctx, camera_m), "fn")
