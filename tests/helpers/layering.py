@@ -183,8 +183,7 @@ def project_packages(repo: Path) -> list[Package]:
     datasets = Package(
         "uav_datasets",
         src,
-        # isal: ISA-L's deflate for the PNGs (shell/writers.py)
-        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools", "isal"}),
+        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools"}),
         pkg,
     )
     return [common, sitl, router, bridge, autonomy, perception, scenarios, campaigns, datasets]

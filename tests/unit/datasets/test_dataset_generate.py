@@ -391,31 +391,39 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def test_a_dead_worker_is_reported_and_the_run_resumes(reference72: Path, workdir: Path, cache: Path) -> None:
+@pytest.mark.parametrize("case", [(2, "worker", "died"), (1, "encoder helper", "the encoder process died")])
+def test_a_dead_worker_is_reported_and_the_run_resumes(
+    reference72: Path, workdir: Path, cache: Path, case: tuple[int, str, str]
+) -> None:
+    """SIGKILL a shard worker (two workers), or the helper process that encodes and writes a worker's images (one
+    worker, in the command's own process): the command stops with a message saying what died and to resume, and
+    the same command finishes the same dataset."""
+    workers, victim, said = case
     one = reference72
-    out = workdir / "dead_worker"
+    out = workdir / f"dead_{victim.replace(' ', '_')}"
     config = workdir / "dataset.yaml"
     argv = [sys.executable, str(REPO / "bin" / "uav-dataset"), "generate", str(config), "--out", str(out)]
-    argv += ["--frames", "72", "--workers", "2", "--cache-dir", str(cache), "--quiet"]
+    argv += ["--frames", "72", "--workers", str(workers), "--cache-dir", str(cache), "--quiet"]
     proc = subprocess.Popen(argv, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        victim = None
+        pid = None
         deadline = time.monotonic() + 90
-        while victim is None and time.monotonic() < deadline and proc.poll() is None:
+        while pid is None and time.monotonic() < deadline and proc.poll() is None:
             journals = list((out / ".progress").glob("*.jsonl")) if (out / ".progress").is_dir() else []
             if any(p.read_text().count("\n") >= 1 for p in journals):
-                workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
-                victim = max(workers, default=None)  # a worker (not the resource tracker)
+                # spawned children: the workers, or with one worker its encoder helper (not the resource tracker)
+                spawned = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+                pid = max(spawned, default=None)
             time.sleep(0.02)
-        assert victim is not None, "no worker to kill"
-        os.kill(victim, signal.SIGKILL)
+        assert pid is not None, f"no {victim} to kill"
+        os.kill(pid, signal.SIGKILL)
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(10)
     assert proc.returncode == 3, err
-    assert "died" in err
+    assert said in err
     assert "resume" in err
     assert not (out / "annotations").exists()
     resume = ["generate", str(config), "--out", str(out), "--frames", "72", "--cache-dir", str(cache), "--quiet"]

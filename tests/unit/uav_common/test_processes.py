@@ -165,3 +165,42 @@ def test_free_ports_lie_below_the_ephemeral_range_so_no_client_can_take_one_as_i
     text.write_text("40000\t50000\n")
     assert ephemeral_range(text) == (40000, 50000)
     assert ephemeral_range(tmp_path / "missing") == (32768, 60999)
+
+
+# A parent that starts a child which asks to die with it, prints the child's pid and sleeps.
+PARENT_OF_A_DEPENDENT = """
+import os, subprocess, sys, time
+code = (
+    "import sys, time\\n"
+    "from uav_common.shell.processes import die_with_parent\\n"
+    "die_with_parent(int(sys.argv[1]))\\n"
+    "print('ready', flush=True)\\n"
+    "time.sleep(300)\\n"
+)
+child = subprocess.Popen([sys.executable, "-c", code, str(os.getpid())], stdout=subprocess.PIPE, text=True)
+assert child.stdout.readline().strip() == "ready"
+print(child.pid, flush=True)
+time.sleep(300)
+"""
+
+
+def test_a_child_that_asked_to_die_with_its_parent_does() -> None:
+    parent = subprocess.Popen([sys.executable, "-c", PARENT_OF_A_DEPENDENT], stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        assert not _gone(child, 0.3)  # alive while its parent is
+        parent.kill()  # SIGKILL: the parent gets no chance to clean up
+        parent.wait(5)
+        assert _gone(child), "the child outlived its parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def test_die_with_parent_of_a_parent_already_gone_dies_at_once() -> None:
+    """The parent named is not this process's parent any more (it died and the child was re-parented): the
+    signal comes at once instead of never."""
+    code = "import os\nfrom uav_common.shell.processes import die_with_parent\ndie_with_parent(os.getppid() + 1)\n"
+    proc = subprocess.run([sys.executable, "-c", code], check=False, timeout=30)
+    assert proc.returncode == -9  # killed by SIGKILL

@@ -8,13 +8,15 @@ in the group that outlived its leader (``rosbag play --wait-for-subscribers`` ig
 while it waits). ``roslaunch`` starts the master and every node in a session of its own, out of
 its group's reach: whatever descended from the leader and is still alive once the leader is
 gone (a master and nodes orphaned by a killed roslaunch) is stopped too, SIGTERM then SIGKILL.
-A child can also be told to receive a signal when its parent dies (``parent_death_signal``),
-so a killed ``uav-run`` or campaign worker never leaves its run behind.
+A child can also be told to receive a signal when its parent dies (``with_parent_death_signal`` for a
+command, :func:`die_with_parent` inside a ``multiprocessing`` child), so a killed ``uav-run``, campaign
+worker or dataset worker never leaves its children behind.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import random
 import shutil
@@ -30,6 +32,7 @@ from uav_common.errors import ResourceError
 __all__ = [
     "LoggedProcess",
     "descendants",
+    "die_with_parent",
     "free_port",
     "free_udp_port",
     "stop_process_group",
@@ -190,6 +193,27 @@ def with_parent_death_signal(argv: Sequence[str], sig: int) -> list[str]:
         msg = "setpriv (util-linux) is not on PATH; install util-linux (it is part of every Debian system)"
         raise ResourceError(msg)
     return [setpriv, "--pdeathsig", signal.Signals(sig).name.removeprefix("SIG"), "--", *argv]
+
+
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
+    """Have the kernel send ``sig`` to this process when its parent dies (``prctl(PR_SET_PDEATHSIG)``), for a
+    ``multiprocessing`` child that must not outlive the process that feeds it. If the parent (``parent_pid``)
+    is already gone, the signal is sent now. The kernel watches the parent *thread* that started this process:
+    start it from a thread that lives as long as it is needed.
+
+    Raises:
+        ResourceError: the kernel refused (not Linux).
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0) != 0:
+        err = ctypes.get_errno()
+        msg = f"prctl(PR_SET_PDEATHSIG) failed: {os.strerror(err)} (Linux only)"
+        raise ResourceError(msg)
+    if os.getppid() != parent_pid:  # died before the request: nobody will send the signal
+        os.kill(os.getpid(), sig)
 
 
 class LoggedProcess:

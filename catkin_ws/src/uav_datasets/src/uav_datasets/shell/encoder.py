@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from uav_common.shell.processes import die_with_parent
 from uav_datasets.errors import WorkerError
 from uav_datasets.shell.writers import atomic_write, encode_color, encode_depth, encode_ids
 
@@ -138,6 +139,11 @@ def _encoder_main(slots: _Slots, inbox: Any, outbox: Any) -> None:
     """The helper process: encode the frame in each slot it is told about, answer ``(slot, key, error)``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the renderer, which closes this helper
     parent = multiprocessing.parent_process()
+    if parent is not None and parent.pid is not None:
+        # A renderer that dies (killed, or a worker stopped by the command) takes this helper with it at once:
+        # otherwise it would go on writing the frames it holds after the command has ended, into a folder that
+        # the next run (the resume) writes too.
+        die_with_parent(parent.pid)
     shms = [shared_memory.SharedMemory(name=n) for n in slots.names]
     height, width, out_dir = slots.height, slots.width, slots.out_dir
     luts: dict[int, npt.NDArray[np.uint16]] = {}
