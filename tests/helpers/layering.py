@@ -183,7 +183,8 @@ def project_packages(repo: Path) -> list[Package]:
     datasets = Package(
         "uav_datasets",
         src,
-        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools"}),
+        # zlib_ng: zlib-ng's deflate for the PNGs (shell/writers.py)
+        frozenset({"uav_common", "uav_sim_bridge", "uav_scenarios", *NUMERIC, "rosbags", "pycocotools", "zlib_ng"}),
         pkg,
     )
     return [common, sitl, router, bridge, autonomy, perception, scenarios, campaigns, datasets]

@@ -34,7 +34,7 @@ def _images() -> list[np.ndarray]:
     ]
 
 
-@pytest.mark.parametrize("level", [1, 0])
+@pytest.mark.parametrize("level", [1, 9, 0])
 @pytest.mark.parametrize("k", range(5))
 def test_png_round_trips_through_opencv_and_pillow(k: int, level: int) -> None:
     img = _images()[k]
@@ -49,6 +49,8 @@ def test_png_round_trips_through_opencv_and_pillow(k: int, level: int) -> None:
 def test_encoders_and_readers(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="encode_png takes"):
         encode_png(np.zeros((4, 4), np.float32))
+    with pytest.raises(ValueError, match="level must be 0"):
+        encode_png(np.zeros((4, 4), np.uint8), level=10)
     depth = np.array([[np.nan, 0.0004, 1.2345], [65.534, 65.5356, 900.0]], np.float32)
     np.testing.assert_array_equal(depth_to_mm(depth), [[0, 0, 1234], [65534, 65535, 65535]])
     data, ext = encode_depth(depth, "uint16_mm")

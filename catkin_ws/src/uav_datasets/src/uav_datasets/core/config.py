@@ -311,8 +311,8 @@ class OutputSpec:
 
     images: Literal["png", "jpg", "none"] = "png"
     jpeg_quality: int = 95
-    #: Colour and depth PNGs: ``fast`` (zlib level 1, ~400 + ~100 KB a 640x480 frame) or ``none`` (stored,
-    #: ~900 + ~600 KB, ~8 ms less CPU a frame). Id masks are always compressed (they shrink to ~20 KB).
+    #: Colour and depth PNGs: ``fast`` (zlib-ng level 1, ~670 KB for a 640x480 frame's four PNGs) or ``none``
+    #: (stored, ~900 + ~600 KB). Id masks are always compressed (they shrink to ~20-30 KB).
     png_compression: Literal["fast", "none"] = "fast"
     coco: bool = True
     yolo: bool = True
