@@ -20,13 +20,13 @@ uint16 depth, instance and class masks, COCO, YOLO, KITTI, card):
 ``BENCH_DATASET_FRAMES`` (default 600, 200 per world) sets the frame count.
 
 This machine's speed varies about 2x from hour to hour: the ratio is the stable number. So does the cost of
-creating a file, and a labelled frame creates seven: ``dataset.file_create_ms`` records the kernel CPU time one
-empty file's creation costs in the bench's folder, measured first. On this machine's ext4 (mounted without a
-journal) it is ~0.02 ms normally but 0.3-0.9 ms for several minutes after many files were deleted (the kernel
-skips recently deleted inodes one by one when it allocates a new one: ``recently_deleted`` in
-``fs/ext4/ialloc.c``, which applies only without a journal): up to ~6 ms of CPU a frame. So the bench deletes what it
-wrote only when it is done, not between its measurements; a bench started right after deleting a big dataset
-(or after the previous run of this bench) reads a lower ratio, and the notes say so.
+creating a file, and a labelled frame creates seven: ``dataset.file_create_ms`` records the CPU time (mostly
+the kernel's) one empty file's creation costs in the bench's folder, measured first. On this machine's ext4
+(mounted without a journal) it is ~0.02 ms normally but 0.3-0.9 ms for several minutes after many files were
+deleted (the kernel skips recently deleted inodes one by one when it allocates a new one: ``recently_deleted``
+in ``fs/ext4/ialloc.c``, which applies only without a journal): up to ~6 ms of CPU a frame. So the bench
+deletes what it wrote only when it is done, not between its measurements; a bench started right after deleting
+a big dataset (or after the previous run of this bench) reads a lower ratio, and the notes say so.
 Run: ``scripts/in_env python bench/bench_dataset.py`` (or ``make bench``).
 """
 

@@ -14,8 +14,8 @@ level 1, against 9.4 ms and ~570 KB with zlib level 1 (Huffman-only colour, RLE 
 previous setting). The output is the same for the same pixels, run after run and process after process: the
 dataset is reproducible file for file (resumed and multi-worker runs are compared byte for byte in the tests).
 ISA-L (``isal``), 2.7 ms, was tried and dropped for that reason: under load, a resumed or multi-worker dataset had
-now and then a PNG whose bytes differed from the one-go run's for the same pixels (2026-11-27, about one run in
-eight of the resume tests). Any PNG decoder reads the files (tested against OpenCV and Pillow): the stream is
+now and then a PNG whose bytes differed from the one-go run's for the same pixels (2026-11-27: 4 of about 58
+runs of the resume tests). Any PNG decoder reads the files (tested against OpenCV and Pillow): the stream is
 standard zlib. Level 0 stores the rows uncompressed (zlib's stored blocks).
 """
 
