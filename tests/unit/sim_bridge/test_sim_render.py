@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import threading
 from pathlib import Path
@@ -106,11 +105,46 @@ def test_the_instance_only_pass_gives_the_full_renders_ids(
         assert ids.dtype == np.uint16
         assert np.array_equal(ids, full.instance_id)
         assert (ids == 0).any() == (cam is FORWARD)  # the forward camera sees the sky
-        short = dataclasses.replace(cam, far_m=80.0)
-        near_ids = default_renderer.render_instances(short, pose)
-        far = ~(full.depth_m <= 75.0)  # beyond the far plane (or sky): nothing, i.e. 0
-        assert (near_ids[far & (full.depth_m > 85.0)] == 0).all()
-        assert (near_ids[full.depth_m < 75.0] == full.instance_id[full.depth_m < 75.0]).all()
+        near_ids = default_renderer.render_instances(cam, pose, draw_within_m=80.0)
+        # only tiles wholly beyond 80 m are skipped: what is nearer is exactly the full render's
+        within = full.depth_m <= 80.0
+        assert (near_ids[within] == full.instance_id[within]).all()
+        if cam is FORWARD:
+            assert (near_ids[full.depth_m > 200.0] == 0).mean() > 0.9  # the distant scene is not drawn
+
+
+def test_the_detection_pass_gives_the_full_renders_ids_around_vehicles_exactly(
+    default_world: World, default_renderer: Renderer
+) -> None:
+    """The bridge's detection-only render (nothing drawn past range + the largest object) and a full render, as
+    the data engine re-renders a flight's frame, give the same id at every pixel within range, also where a
+    vehicle meets a slope: the boxes of the ground-truth detections and of the dataset's labels are equal. A
+    projection with a shorter far plane (what the bridge used before) changed the depth precision and with it
+    a few pixels in most of these views, now and then the edge of a vehicle's box."""
+    cam = CameraModel.from_config(
+        "forward", CameraConfig(width=480, height=360, hfov_deg=90.0, mount=MountConfig(rpy_deg=(0, 25, 0)))
+    )
+    rng = np.random.default_rng(1)
+    draw_within_m = 112.0  # the bridge's detection range (100 m) plus the largest object, plus 1 m
+    views = 0
+    for vehicle in default_world.objects_of_class(ObjectClass.VEHICLE)[:20]:
+        ox, oy, oz = vehicle.pose.position_m
+        for _ in range(2):  # 30-100 m away, 15-60 m above it, the vehicle anywhere in the frame
+            d, a = rng.uniform(30.0, 100.0), rng.uniform(-math.pi, math.pi)
+            base = RigidTransform.from_rpy(
+                [ox - d * math.cos(a), oy - d * math.sin(a), oz + rng.uniform(15.0, 60.0)],
+                yaw_rad=a + rng.uniform(-0.7, 0.7),
+            )
+            pose = cam.optical_pose(base)
+            full = default_renderer.render(cam, pose)
+            ids = default_renderer.render_instances(cam, pose, draw_within_m=draw_within_m)
+            within = full.depth_m <= draw_within_m
+            where = f"{vehicle.name}, view {views}"
+            np.testing.assert_array_equal(ids[within], full.instance_id[within], err_msg=where)
+            views += (full.instance_id == vehicle.instance_id).any()
+    assert views >= 20  # most views show their vehicle
+    with pytest.raises(ValueError, match="draw_within_m"):
+        default_renderer.render_instances(cam, pose, draw_within_m=0.0)
 
 
 def test_people_appear_where_the_camera_model_projects_them(default_world: World, default_renderer: Renderer) -> None:

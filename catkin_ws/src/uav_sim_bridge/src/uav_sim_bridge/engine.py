@@ -196,10 +196,12 @@ class BridgeEngine:
         self._mover_reach = np.zeros(0)
         self._mover_speed = np.zeros(0)
         self._renderer_stale: list[MoverState] = []
-        # Detection-only renders stop past the detection range plus the largest movable object:
-        # nothing farther can hide or be an object whose centre is in range.
+        # Detection-only renders draw nothing past the detection range plus the largest movable object:
+        # nothing farther can hide or be an object whose centre is in range. They keep the camera's projection
+        # (render_instances), so their ids are the full render's; the frustum below decides whether to render.
         largest_m = max((float(np.linalg.norm(o.size_m)) for o in self._objects.values()), default=0.0)
         det_far_m = cfg.detections.max_range_m + largest_m + 1.0
+        self._detection_draw_m = det_far_m
         self._detection_cameras = {
             name: dataclasses.replace(cam, far_m=min(cam.far_m, max(det_far_m, 2.0 * cam.near_m)))
             for name, cam in self.cameras.items()
@@ -439,7 +441,6 @@ class BridgeEngine:
         job: Future[EffectsResult] | None = None
         dropped = False
         if full:
-            det_cam = cam
             effects = self.effects.get(name)
             dropped = effects.drop() if effects is not None else False
             self._sync_renderer()
@@ -457,18 +458,18 @@ class BridgeEngine:
                     lambda: effects.apply(rendered.color_rgb, rendered.depth_m, t, motion)
                 )
         else:
-            det_cam = self._detection_cameras[name]
-            if not self.detectables_in_view(det_cam, t_opt):  # most frames: nothing to detect, no render
+            # most frames: nothing to detect, no render
+            if not self.detectables_in_view(self._detection_cameras[name], t_opt):
                 return CameraOutput(cam, t_opt, None, None, [], t), None
             self._sync_renderer()
-            instance_id = self.renderer.render_instances(det_cam, t_opt)
+            instance_id = self.renderer.render_instances(cam, t_opt, draw_within_m=self._detection_draw_m)
         dets = None
         if detect:
             cands = visible_candidates(instance_id, t_opt, self._objects, cfg.detections)
             dets = []  # most frames: nobody in view, and the per-pixel work below is skipped
             if cands:
                 self._sync_renderer()
-                alone = self.renderer.unoccluded_pixel_counts(det_cam, t_opt, cands)
+                alone = self.renderer.unoccluded_pixel_counts(cam, t_opt, cands)
                 objs = {iid: self._objects[iid] for iid in cands}
                 dets = ground_truth_detections(instance_id, t_opt, objs, cfg.detections, alone)
         if dropped:  # the camera lost the frame: only the (ground-truth) detections remain

@@ -24,6 +24,7 @@ People and vehicles live in a small dynamic buffer so they can be moved.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import threading
@@ -572,8 +573,11 @@ class Renderer:
             finally:
                 self._shadow_mode = 0
 
-    def _draw_scene(self, camera: CameraModel, t_map_optical: RigidTransform, *, shaded: bool) -> None:
-        cmds, pad = self._draw_commands(camera, t_map_optical)
+    def _draw_scene(
+        self, camera: CameraModel, t_map_optical: RigidTransform, *, shaded: bool, cull: CameraModel | None = None
+    ) -> None:
+        """Draw the static tiles in ``cull``'s frustum (default: the camera's) and every dynamic object."""
+        cmds, pad = self._draw_commands(cull or camera, t_map_optical)
         if len(cmds):
             self._indirect.orphan(len(cmds) * 20)
             self._indirect.write(cmds.tobytes())
@@ -807,22 +811,37 @@ class Renderer:
         tex0, _ = self._shadow_static
         tex0.use(location=0)
 
-    def render_instances(self, camera: CameraModel, t_map_optical: RigidTransform) -> npt.NDArray[np.uint16]:
+    def render_instances(
+        self, camera: CameraModel, t_map_optical: RigidTransform, *, draw_within_m: float | None = None
+    ) -> npt.NDArray[np.uint16]:
         """Only the instance-id image of :meth:`render` (0 where nothing was hit), unshaded.
 
         Several times cheaper than :meth:`render` when nothing else is consumed (ground-truth
-        detections).  Pass a camera with a short ``far_m`` (e.g. the detection range plus the
-        largest object) to skip the distant scene: nothing beyond it can hide what is nearer.
+        detections).  ``draw_within_m`` (e.g. the detection range plus the largest object) skips the
+        distant scene: the terrain and object tiles wholly beyond that z-depth are not drawn, since nothing
+        there can hide what is nearer. The projection stays the camera's (same near and far planes), so every
+        surface drawn gets the depth it gets in :meth:`render`, and the ids within ``draw_within_m`` are
+        exactly the full render's, down to which of two nearly coincident surfaces wins a pixel (a vehicle
+        sunk into a slope). A shorter far plane would change the depth buffer's precision and with it,
+        now and then, an edge pixel.
 
         Raises:
             RenderError: called from a thread other than the creating one.
+            ValueError: ``draw_within_m`` is not positive.
         """
         self._check_thread()
+        cull = None
+        if draw_within_m is not None:
+            if not draw_within_m > 0.0:
+                msg = f"draw_within_m must be > 0, got {draw_within_m}"
+                raise ValueError(msg)
+            far = min(camera.far_m, max(draw_within_m, 2.0 * camera.near_m))
+            cull = dataclasses.replace(camera, far_m=far)
         with self.ctx:
             target = self._setup_camera(camera, t_map_optical, shaded=False)
             # Where nothing is drawn the id stays the clear value, 0: Mesa clears an integer attachment with the
             # bit pattern of the float clear colour, and 0.0f is 0 (a full-screen pass did the same, ~1 ms more).
-            self._draw_scene(camera, t_map_optical, shaded=False)
+            self._draw_scene(camera, t_map_optical, shaded=False, cull=cull)
             target.fbo_inst.read_into(target.buf_inst, attachment=0, components=1, dtype="u4", alignment=1)
             return target.buf_inst[::-1].astype(np.uint16)
 
