@@ -129,6 +129,34 @@ def test_link_stamps_arrivals_on_both_clocks_and_reconnects_only_after_the_wall_
         link.close()
 
 
+def test_a_poll_stamps_each_message_with_the_clock_when_it_is_read() -> None:
+    """A poll on a loaded machine can last simulated seconds: with a clock, a message read late in it is stamped
+    then (the controller's mode change was once published 4.6 s before it was read)."""
+    import socket  # noqa: PLC0415
+
+    from uav_autonomy.mavlink.link import MavlinkLink  # noqa: PLC0415
+
+    link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, source_component=191, target_system=1,
+                       target_component=1, reconnect_after_s=5.0)  # fmt: skip
+    link.open(0.0, 100.0)
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        port = link._require().port.getsockname()[1]  # type: ignore[attr-defined]
+        frames = [_mavlink_frame("heartbeat", 2, 12, 0, 0, 4, 3),
+                  _mavlink_frame("local_position_ned", 1000, 10.0, 5.0, -20.0, 0.0, 0.0, 0.0)]  # fmt: skip
+        for frame in frames:
+            out.sendto(bytes(frame.get_msgbuf()), ("127.0.0.1", port))  # type: ignore[attr-defined]
+        link.wait_readable(2.0)
+        readings = iter([(7.0, 101.0), (9.5, 101.2)])
+        link.poll(5.0, 100.5, clock=lambda: next(readings))
+        t = link.telemetry()
+        assert (t.heartbeat_s, t.heartbeat_wall_s) == (7.0, 101.0)
+        assert (t.position_s, t.position_wall_s) == (9.5, 101.2)
+    finally:
+        out.close()
+        link.close()
+
+
 def test_octomap_read_from_its_serialized_bytes() -> None:
     import io  # noqa: PLC0415
 

@@ -102,6 +102,11 @@ def scripted_waypoints(req: object, default_altitude_m: float) -> list[tuple[flo
     return [(float(a), float(b), float(c)) for a, b, c in arr]
 
 
+def _clocks() -> tuple[float, float]:
+    """ROS time and the wall clock, read now (the link stamps each message it reads with them)."""
+    return rospy.get_time(), time.monotonic()
+
+
 class WaypointControllerNode:
     def __init__(self, config: ControllerConfig, pose_topic: str = "") -> None:
         self.config = config
@@ -145,10 +150,14 @@ class WaypointControllerNode:
         now = rospy.get_time()
         if now == self._last_step_s:  # a catch-up callback at the same simulated time (see module docstring)
             return
-        self._last_step_s = now
         with self._lock:
             now_wall = time.monotonic()  # the wall floor under every timeout (see core.controller)
-            self.link.poll(now, now_wall)
+            self.link.poll(now, now_wall, clock=_clocks)
+            # What the poll read is as of its end, and on a loaded machine a poll can outlast simulated seconds
+            # (the process descheduled, or a burst of telemetry): step and stamp the state at that time, or a
+            # mode change read then is published as if seen when the callback started.
+            now, now_wall = max(now, rospy.get_time()), time.monotonic()
+            self._last_step_s = now
             telemetry = self.link.telemetry()
             actions = self.core.step(now, telemetry, now_wall, self._pose_check(now, now_wall))
             try:
