@@ -53,10 +53,10 @@ typecheck: setup
 bench: setup ## run every benchmark; appends JSON lines to bench/results/latest.jsonl
 	@$(IN_ENV) python bench/run.py
 
-train-detector: setup ## opt-in: install torch (CPU) + onnx, generate the training data, train and score the shipped detector (~40 min on 2 cores) -> runs/detector
+train-detector: setup ## opt-in: install torch (CPU) + onnx, generate the training data, train and score the shipped detector (~20 min on 2 cores) -> runs/detector
 	@$(IN_ENV) python -m pip --disable-pip-version-check -q install -r requirements-train.txt
 	@nice -n 10 $(IN_ENV) uav-dataset generate config/datasets/detector_train.yaml --out datasets/detector_train --workers 2
-	@nice -n 10 $(IN_ENV) uav-train-detector datasets/detector_train --out runs/detector --steps 1400 --crop-px 192 --batch-size 16 --seed 0 --threads 2
+	@nice -n 10 $(IN_ENV) uav-train-detector datasets/detector_train --out runs/detector --steps 8000 --crop-px 192 --batch-size 16 --seed 0 --threads 2
 	@echo "trained: runs/detector/model.onnx (eval.json, curve.png); to ship it: cp runs/detector/model.onnx catkin_ws/src/uav_perception/models/uav_detector.onnx"
 
 campaign-smoke: setup ## the CI-sized campaign (4 short runs) on an embedded Dask cluster -> runs/campaigns/smoke
