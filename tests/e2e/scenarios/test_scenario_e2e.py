@@ -67,6 +67,20 @@ def flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def assert_box_only_search(run_dir: Path, m: dict[str, Any], source: str) -> None:
+    """What the mission and the tracker used were the detector's boxes (``source``) as the geolocator placed them
+    (on the elevation layer or the terrain, within 3 m of the truth at the median): no instance ids, no true
+    positions."""
+    geo = m["detection"]["geolocation"]
+    assert sum(geo["placed"].values()) > 0
+    assert set(geo["placed"]) <= {"elevation", "terrain"}
+    assert geo["error"]["median_m"] < 3.0
+    run = read_run_bag(run_dir / "run.bag")
+    placed = [f for f in run.detections if f.source == source]
+    assert placed
+    assert all(d.instance_id == 0 for f in placed for d in f.detections)
+
+
 def test_sar_finds_the_person_and_the_report_has_every_figure() -> None:
     run_dir, out = uav_run(HERE / "small_sar.yaml", "sar")
     m = metrics(run_dir)
@@ -150,15 +164,7 @@ def test_sar_with_box_only_detections_finds_the_person() -> None:
     assert in_view_s <= m["time"]["complete_s"], (det["person_first_in_view"], m["time"])
     first_s = det["person_first_detected"]["t_s"]
     assert math.isnan(first_s) or first_s >= in_view_s, det["person_first_detected"]
-    geo = det["geolocation"]
-    assert sum(geo["placed"].values()) > 0
-    assert set(geo["placed"]) <= {"elevation", "terrain"}
-    assert geo["error"]["median_m"] < 3.0
-    # what the mission and the tracker used: box-only placements, no instance ids
-    run = read_run_bag(run_dir / "run.bag")
-    placed = [f for f in run.detections if f.source == "degraded_truth"]
-    assert placed
-    assert all(d.instance_id == 0 for f in placed for d in f.detections)
+    assert_box_only_search(run_dir, m, "degraded_truth")
     assert m["tracking"]["hota"] is not None
     html = (run_dir / "report.html").read_text()
     for fig in ("pr_curves", "gallery"):
