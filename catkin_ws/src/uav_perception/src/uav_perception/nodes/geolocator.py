@@ -25,7 +25,8 @@ Parameters (``uav_perception.ros.params.GeolocatorParams``):
     ``~camera`` (``forward``), ``~detections`` (input topic, "" = ``/detections/<camera>/ground_truth``),
     ``~detector`` (its name in the output), ``~camera_info`` ("" = ``/cameras/<camera>/color/camera_info``),
     ``~depth`` (""), ``~elevation`` (""), ``~terrain_dem`` (file, ""), ``~classes`` (class map, ""),
-    ``~map_frame`` (``map``), ``~tf_timeout_s`` (0.5), ``~depth_wait_s`` (1.0), ``~box_margin_px`` (2),
+    ``~map_frame`` (``map``), ``~tf_timeout_s`` (0.5: wall seconds after a frame arrived), ``~depth_wait_s`` (1.0),
+    ``~box_margin_px`` (2),
     ``~geolocation`` (dict: ``GeolocationConfig`` keys). A missing or malformed terrain model file stops
     the node (exit code 3, naming the file); any unknown parameter too (exit code 2).
 
@@ -62,6 +63,7 @@ from uav_perception.core.detection.heightfield import HeightGrid
 from uav_perception.errors import DepthError, DetectionError, PerceptionConfigError, PerceptionError
 from uav_perception.ros.conversions import camera_from_info, pose_from_transform
 from uav_perception.ros.params import GeolocatorParams, detection_classes
+from uav_perception.ros.tf_wait import lookup_until
 from uav_perception.ros.vision import elevation_from_layers, geolocated_array_msg, raw_detections_from_msg, status_msg
 from uav_perception.shell.dem import load_dem
 
@@ -182,33 +184,32 @@ class GeolocatorNode:
                 depth = self._depth_for(frame.msg.header.stamp.to_nsec()) if self.p.depth else None
                 camera, optical, elevation = self.camera, self.optical_frame, self.elevation
             try:
-                self._handle(frame.msg, camera, optical, depth, elevation)
+                self._handle(frame, camera, optical, depth, elevation)
             except Exception as err:  # one bad frame must not stop the node
                 rospy.logerr(
                     f"geolocator: frame at {frame.msg.header.stamp.to_sec():.3f} s failed: {type(err).__name__}: {err}"
                 )
 
-    def _pose(self, frame_id: str, stamp: rospy.Time) -> CameraPose | None:
-        deadline = time.monotonic() + self.p.tf_timeout_s
-        while True:
-            try:
-                tf = self.tf_buffer.lookup_transform(self.p.map_frame, frame_id, stamp)
-                return pose_from_transform(tf.transform)
-            except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as err:
-                if time.monotonic() >= deadline or rospy.is_shutdown():
-                    rospy.logwarn_throttle(5.0, f"geolocator: no pose of {frame_id} at {stamp.to_sec():.3f} s: {err}")
-                    return None
-            time.sleep(0.005)
+    def _pose(self, frame_id: str, stamp: rospy.Time, received_wall: float) -> CameraPose | None:
+        """The camera's pose at ``stamp``, waited for at most ``~tf_timeout_s`` after the frame *arrived*
+        (:func:`uav_perception.ros.tf_wait.lookup_until`: a frame that waited in the queue does not wait again)."""
+        deadline = received_wall + self.p.tf_timeout_s
+        tf, why = lookup_until(self.tf_buffer, self.p.map_frame, frame_id, stamp, deadline, stop=rospy.is_shutdown)
+        if tf is None:
+            rospy.logwarn_throttle(5.0, f"geolocator: no pose of {frame_id} at {stamp.to_sec():.3f} s: {why}")
+            return None
+        return pose_from_transform(tf.transform)
 
     def _handle(
         self,
-        msg: Detection2DArray,
+        frame: _Frame,
         camera: PinholeCamera | None,
         optical: str,
         depth: npt.NDArray[np.float32] | None,
         elevation: HeightGrid | None,
     ) -> None:
         t0 = time.perf_counter()
+        msg = frame.msg
         frame_id = msg.header.frame_id or optical
         if camera is not None and optical and frame_id != optical:
             self.n_other += 1
@@ -224,7 +225,7 @@ class GeolocatorNode:
                 f"geolocator: discarded {dict(discarded)} of {len(raw)} detections "
                 f"at {msg.header.stamp.to_sec():.3f} s",
             )
-        pose = self._pose(frame_id, msg.header.stamp) if boxes and frame_id else None
+        pose = self._pose(frame_id, msg.header.stamp, frame.received_wall) if boxes and frame_id else None
         if depth is not None and camera is not None and depth.shape != camera.shape:
             rospy.logwarn_throttle(
                 10.0, f"geolocator: depth image {depth.shape[::-1]} does not match camera_info; not used"
