@@ -50,10 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.fresh:
         shutil.rmtree(args.out, ignore_errors=True)
-    t0 = time.perf_counter()
     if shutil.which("uav-campaign") is None:
         print("uav-campaign is not on PATH: run inside the project environment (scripts/in_env)", file=sys.stderr)
         return 2
+    t0 = time.perf_counter()
     cmd = ["uav-campaign", "run", str(CAMPAIGN), "--out", str(args.out), "--dashboard-address", ":0"]
     rc = subprocess.run(cmd, cwd=REPO, check=False).returncode
     wall_s = time.perf_counter() - t0
@@ -67,17 +67,24 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         if r["arm"] in by_arm:
             by_arm[r["arm"]][int(r["seed"])] = _float(r.get("time.complete_s", ""))
-    n = {arm: len(v) for arm, v in by_arm.items()}
-    found = {arm: sum(math.isfinite(t) for t in v.values()) for arm, v in by_arm.items()}
-    if not n["learned"] or not n["ground_truth"]:
-        print(f"bench_sar_detectors: runs done per arm {n} (rc {rc}); see {args.out}", file=sys.stderr)
+    # the rates as the campaign computed them (success.csv, criterion "found"), not counted again here
+    with (args.out / "success.csv").open() as fh:
+        found_rows = {r["arm"]: r for r in csv.DictReader(fh) if r["criterion"] == "found"}
+    if set(found_rows) != set(by_arm):
+        print(f"bench_sar_detectors: success.csv has 'found' for {sorted(found_rows)} (rc {rc}); see {args.out}",
+              file=sys.stderr)  # fmt: skip
         return 1
-    rate = {arm: found[arm] / n[arm] for arm in by_arm}
+    n = {arm: int(found_rows[arm]["n"]) for arm in by_arm}
+    found = {arm: int(found_rows[arm]["successes"]) for arm in by_arm}
+    rate = {arm: float(found_rows[arm]["rate"]) for arm in by_arm}
     learned_found = {s: t for s, t in by_arm["learned"].items() if math.isfinite(t)}
     missed = sorted(s for s, t in by_arm["learned"].items() if not math.isfinite(t))
+    ci = {arm: f"{float(found_rows[arm]['ci_low']):.2f}-{float(found_rows[arm]['ci_high']):.2f}" for arm in by_arm}
     notes = (
         f"learned found {found['learned']}/{n['learned']} placements (missed seeds {missed or 'none'}), ground truth "
-        f"{found['ground_truth']}/{n['ground_truth']}; config/campaigns/sar_detectors.yaml, default world seed 7 (held "
+        f"{found['ground_truth']}/{n['ground_truth']} (Wilson 95 % intervals: learned {ci['learned']}, ground truth "
+        f"{ci['ground_truth']}); config/campaigns/sar_detectors.yaml, default world "
+        f"seed 7 (held "
         f"out), person placement seeds 1-10, 600 s limit, lockstep; campaign command rc {rc}, {wall_s:.0f} s wall "
         f"this invocation (runs already done are not run again); {args.out}"
     )
