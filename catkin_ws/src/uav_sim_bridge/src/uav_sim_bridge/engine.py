@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,7 +46,7 @@ from uav_common.geo import GeoPoint, LocalProjection
 from uav_sim_bridge.config import SimBridgeConfig
 from uav_sim_bridge.core import figures
 from uav_sim_bridge.core.camera import CameraModel
-from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, EffectsResult, camera_rng
+from uav_sim_bridge.core.camera_effects import CameraEffects, CameraMotion, camera_rng
 from uav_sim_bridge.core.camera_faults import CameraFaults, Verdict, garbage_color, garbage_depth
 from uav_sim_bridge.core.collision import CollisionChecker, Contact
 from uav_sim_bridge.core.detections import GroundTruthDetection, ground_truth_detections, visible_candidates
@@ -62,6 +61,7 @@ from uav_sim_bridge.core.vehicle_state import VehicleState
 from uav_sim_bridge.core.world import World
 from uav_sim_bridge.core.world_config import ObjectClass
 from uav_sim_bridge.render import RenderedFrame, Renderer
+from uav_sim_bridge.shell.effects_process import EffectsJob, EffectsProcess, StageSpec
 
 __all__ = ["BridgeEngine", "CameraOutput", "ObjectState", "StepOutput", "TerrainReport"]
 
@@ -171,7 +171,7 @@ class BridgeEngine:
             {name: camera_rng(fc.seed, f"fault:{name}") for name in self.cameras},
             intermittent_drop_probability=fc.intermittent_drop_probability,
         )
-        self._pool: ThreadPoolExecutor | None = None
+        self._fx_process: EffectsProcess | None = None  # started with the first frame that has effects
         self._delayed: list[CameraOutput] = []
         # Moving people and vehicles.
         self.motion: MotionPlan = plan_motion(
@@ -395,9 +395,9 @@ class BridgeEngine:
         due = [name for name in due if wanted(name) or name in det_cams]
         if due:
             self.sync_movers(t)
-        pending: list[tuple[CameraOutput, Future[EffectsResult] | None]] = []
+        pending: list[tuple[CameraOutput, EffectsJob | None]] = []
         for name in due:
-            # a camera's effects run in the effects thread while the next camera renders (GL stays in this thread)
+            # a camera's effects run in the effects process while the next camera renders (GL stays in this thread)
             out, job = self._camera(name, state, full=wanted(name), detect=name in det_cams)
             if out is not None:
                 pending.append((out, job))
@@ -406,7 +406,7 @@ class BridgeEngine:
                 outputs.append(out)
             elif self.cfg.environment.effects_for(out.camera.name).latency_s > 0.0:
                 # a delayed camera's image is not delivered before its latency has passed: its effects finish in
-                # the effects thread meanwhile (the next cameras render) and its colour waits for them when read
+                # the effects process meanwhile (the next cameras render) and its colour waits for them when read
                 outputs.append(_pending_effects(out, job))
             else:
                 outputs.append(_with_effects(out, job))
@@ -429,16 +429,16 @@ class BridgeEngine:
 
     def _camera(
         self, name: str, state: VehicleState, *, full: bool, detect: bool
-    ) -> tuple[CameraOutput | None, Future[EffectsResult] | None]:
+    ) -> tuple[CameraOutput | None, EffectsJob | None]:
         """Render camera ``name`` for this state (all images, or only the ids its detections need); its camera
-        effects, if any, are submitted to the effects thread (the returned future)."""
+        effects, if any, are submitted to the effects process (the returned job)."""
         cfg = self.cfg
         t = state.sim_time_s
         cam = self.cameras[name]
         t_opt = cam.optical_pose(state.t_map_base)
         frame: RenderedFrame | None = None
         depth: npt.NDArray[np.float32] | None = None
-        job: Future[EffectsResult] | None = None
+        job: EffectsJob | None = None
         dropped = False
         if full:
             effects = self.effects.get(name)
@@ -452,10 +452,16 @@ class BridgeEngine:
             elif cfg.environment.depth_noise is not None:
                 depth = degrade_depth(frame.depth_m, cfg.environment.depth_noise, self._depth_rng)
             if effects is not None and not dropped:
-                rendered, motion = frame, self._camera_motion(cam, state)
-                # the colour is read in the effects thread: with shadows, finishing it is part of the job there
-                job = self._effects_pool().submit(
-                    lambda: effects.apply(rendered.color_rgb, rendered.depth_m, t, motion)
+                # the effects (and, with shadows, finishing the colour) run in the effects process beside the next
+                # render: the frame's images go there through shared memory
+                unshaded = frame.unshaded
+                job = self._effects_process().submit(
+                    name,
+                    frame.depth_m,
+                    t,
+                    self._camera_motion(cam, state),
+                    color_rgb=None if unshaded is not None else frame.color_rgb,
+                    unshaded=unshaded,
                 )
         else:
             # most frames: nothing to detect, no render
@@ -514,27 +520,34 @@ class BridgeEngine:
             return None
         return dataclasses.replace(out, frame=None, depth_m=None, fault=r.verdict.value, boxes=None)
 
-    def _effects_pool(self) -> ThreadPoolExecutor:
-        """One worker: each camera's effects run in submission order (deterministic), beside the GL thread."""
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-effects")
-        return self._pool
+    def _effects_process(self) -> EffectsProcess:
+        """The camera-effects process (:mod:`uav_sim_bridge.shell.effects_process`): every camera's effects, one frame
+        after the other in submission order (deterministic), beside the GL thread and without its GIL."""
+        if self._fx_process is None:
+            env = self.cfg.environment
+            self._fx_process = EffectsProcess(
+                {
+                    name: StageSpec(fx.cfg, fx.width, fx.height, fx.fx, fx.fy, fx.cx, fx.cy, env.seed)
+                    for name, fx in self.effects.items()
+                }
+            )
+        return self._fx_process
 
     def wait_effects(self) -> None:
-        """Wait until the effects thread has finished every frame submitted so far (a benchmark charges this
+        """Wait until the effects process has finished every frame submitted so far (a benchmark charges this
         engine for the work it left running)."""
-        if self._pool is not None:
-            self._pool.submit(lambda: None).result()
+        if self._fx_process is not None:
+            self._fx_process.wait_all()
 
     def close(self) -> None:
-        """Stop the effects thread (the renderer is the caller's)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        """Stop the effects process (the renderer is the caller's)."""
+        if self._fx_process is not None:
+            self._fx_process.close()
+            self._fx_process = None
 
     def _deliver(self, outputs: list[CameraOutput], t_s: float) -> list[CameraOutput]:
         """Hold back delayed camera images until their capture time plus the camera's latency (an image whose
-        effects still run in the effects thread gets its exposure and gain from them then)."""
+        effects still run in the effects process gets its exposure and gain from them then)."""
         ready: list[CameraOutput] = []
         for out in outputs:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
@@ -602,8 +615,8 @@ class BridgeEngine:
         return TerrainReport(geo.lat_deg, geo.lon_deg, home.alt_amsl_m + surface_z, z - surface_z, surface_z, iid)
 
 
-def _with_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput:
-    """``out`` with its camera effects applied (waits for the effects thread)."""
+def _with_effects(out: CameraOutput, job: EffectsJob) -> CameraOutput:
+    """``out`` with its camera effects applied (waits for the effects process)."""
     result = job.result()
     frame = out.frame
     assert frame is not None
@@ -612,17 +625,17 @@ def _with_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput
 
 
 class _PendingFrame(RenderedFrame):
-    """A delayed camera's frame whose effects still run in the effects thread: its colour waits for them when
+    """A delayed camera's frame whose effects still run in the effects process: its colour waits for them when
     first read (a camera fault may keep it, a stuck camera show it again); ``job`` gives exposure and gain."""
 
     __slots__ = ("job",)
 
-    def __init__(self, frame: RenderedFrame, job: Future[EffectsResult]) -> None:
+    def __init__(self, frame: RenderedFrame, job: EffectsJob) -> None:
         super().__init__(None, frame.depth_m, frame.instance_id, shade=lambda: job.result().color_rgb)
         self.job = job
 
 
-def _pending_effects(out: CameraOutput, job: Future[EffectsResult]) -> CameraOutput:
+def _pending_effects(out: CameraOutput, job: EffectsJob) -> CameraOutput:
     """``out`` with a frame whose colour is the effects' result, waited for when read (see :class:`_PendingFrame`)."""
     frame = out.frame
     assert frame is not None

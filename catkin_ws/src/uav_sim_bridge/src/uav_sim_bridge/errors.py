@@ -13,6 +13,7 @@ from __future__ import annotations
 from uav_common.errors import ConfigError, ResourceError
 
 __all__ = [
+    "CameraEffectsError",
     "CameraError",
     "CameraFaultError",
     "RenderError",
@@ -46,6 +47,11 @@ class CameraError(SimBridgeError, ValueError):
 
 class CameraFaultError(SimBridgeError, ValueError):
     """A camera fault names an unknown camera or type (``uav_sim_bridge.core.camera_faults``)."""
+
+
+class CameraEffectsError(SimBridgeError, ResourceError):
+    """The camera-effects process failed a frame, died or could not be started
+    (``uav_sim_bridge.shell.effects_process``)."""
 
 
 class RenderError(SimBridgeError, ResourceError):

@@ -152,9 +152,9 @@ class CameraModel:
     def hfov_rad(self) -> float:
         return 2.0 * math.atan2(self.width / 2.0, self.fx)
 
-    @property
+    @cached_property
     def t_base_optical(self) -> RigidTransform:
-        """``T_base_link_optical``: mount followed by the FLU -> optical axis swap."""
+        """``T_base_link_optical``: mount followed by the FLU -> optical axis swap (computed once per camera)."""
         return self.t_base_camera @ RigidTransform(OPTICAL_FROM_FLU, np.zeros(3))
 
     def optical_pose(self, t_map_base: RigidTransform) -> RigidTransform:
