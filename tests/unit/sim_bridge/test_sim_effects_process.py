@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -162,3 +164,10 @@ def test_the_process_works_under_a_default_socket_timeout(frames: list[RenderedF
         assert all(j.result().color_rgb.shape == (240, 320, 3) for j in jobs)
     finally:
         proc.close()
+
+
+def test_the_worker_says_what_it_is_when_run_by_hand() -> None:
+    cmd = [sys.executable, "-m", "uav_sim_bridge.cli.effects_worker"]
+    res = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2
+    assert "the bridge starts it itself" in res.stderr

@@ -9,7 +9,7 @@ at a lower priority (``nice``) than the renderer it must not slow down.
 
 How it works:
 
-* the parent (:class:`EffectsProcess`) starts ``python -m uav_sim_bridge.shell.effects_process FD`` with one end
+* the parent (:class:`EffectsProcess`) starts ``python -m uav_sim_bridge.cli.effects_worker FD`` with one end
   of a socket pair, and sends it each camera's stage (:class:`StageSpec`: its effects, size, intrinsics and
   seed); the child builds the same :class:`~uav_sim_bridge.core.camera_effects.CameraEffects` (the same seeded
   generator), so its images are bit-identical to the stage run in the parent;
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -190,7 +191,7 @@ class EffectsProcess:
             env.setdefault("MALLOC_TRIM_THRESHOLD_", str(256 << 20))
             child_fd = child_sock.fileno()
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "uav_sim_bridge.shell.effects_process", str(child_fd)],
+                [sys.executable, "-m", "uav_sim_bridge.cli.effects_worker", str(child_fd)],
                 pass_fds=(child_fd,),
                 env=env,
                 stdin=subprocess.DEVNULL,
@@ -372,6 +373,9 @@ def serve(conn: Connection) -> int:
     """The child's loop: build the stages, then apply them to each frame until told to stop or orphaned."""
     import cv2  # noqa: PLC0415
 
+    # Ctrl-C and roslaunch's SIGINT are for the node: it closes the socket, and the child ends on that (so a
+    # stopping node's frames still finish, and no KeyboardInterrupt traceback lands in its log)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     msg = conn.recv()
     _, stages, paths, nice = msg
     if nice:
@@ -406,14 +410,7 @@ def serve(conn: Connection) -> int:
             conn.send(("error", seq, f"{type(exc).__name__}: {exc}"))
 
 
-def main(argv: list[str]) -> int:
-    if len(argv) != 1 or not argv[0].isdigit():
-        sys.stderr.write("usage: python -m uav_sim_bridge.shell.effects_process FD (started by EffectsProcess)\n")
-        return 2
-    fd = int(argv[0])
+def serve_fd(fd: int) -> int:
+    """The child's entry (:mod:`uav_sim_bridge.cli.effects_worker`): serve the parent on socket ``fd``."""
     os.set_blocking(fd, True)
     return serve(Connection(fd))
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
