@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -171,3 +172,31 @@ def test_the_worker_says_what_it_is_when_run_by_hand() -> None:
     res = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     assert "the bridge starts it itself" in res.stderr
+
+
+def test_the_child_ends_when_its_parent_dies_without_a_word() -> None:
+    # a bridge node killed outright leaves no effects process behind: the child sees its socket close and exits
+    script = (
+        "import os, sys\n"
+        "from uav_sim_bridge.core.camera_effects import CameraEffectsConfig\n"
+        "from uav_sim_bridge.shell.effects_process import EffectsProcess, StageSpec\n"
+        "spec = StageSpec(CameraEffectsConfig(vignetting=0.2), 32, 24, 16.0, 16.0, 15.5, 11.5, 1)\n"
+        "p = EffectsProcess({'nadir': spec})\n"
+        "print(p.pid, flush=True)\n"
+        "os._exit(0)\n"
+    )
+    # not run(): the child inherits the parent's stdout, so waiting for that pipe to close would wait for the child
+    with subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True) as parent:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        assert parent.wait(timeout=60) == 0
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            return
+        if Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+            return  # gone, only its exit status left for init to collect
+        time.sleep(0.05)
+    pytest.fail(f"the effects process {child} outlived its parent by 10 s")
