@@ -10,8 +10,8 @@ run, in blocks of 20 frame pairs alternating between:
 * **stress**: the ``stress_all`` environment (sun from a time of day, shadows of the static world and of
   people and vehicles, auto-exposure and gain, shot and read noise, motion blur, defocus, vignetting,
   JPEG, dropped frames, latency) and the default world's walkers and drivers. The camera effects run in the
-  engine's effects process (``uav_sim_bridge.shell.effects_process``); ``cpu_ms`` in the notes is this
-  process's CPU, the child's is given apart.
+  engine's effects process (``uav_sim_bridge.shell.effects_process``); the notes give this process's CPU per
+  pair and the child's apart.
 
 Each block ends by waiting for its engine's effects process (``BridgeEngine.wait_effects``), so an engine pays
 for the work it leaves running: with frame pairs alternating one by one, the stress engine's effects (delayed
