@@ -66,10 +66,10 @@ def _load() -> str:
 
 def _child_cpu_s(eng: BridgeEngine) -> float:
     """CPU seconds the engine's camera-effects process has used so far (0 without one)."""
-    proc = eng._fx_process
-    if proc is None or proc.pid is None:
+    pid = eng.effects_pid
+    if pid is None:
         return 0.0
-    fields = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 

@@ -158,13 +158,14 @@ class BridgeEngine:
         env = cfg.environment
         self.lighting: Lighting = lighting_for(env, world.config.latitude_deg, cfg.render.haze_distance_m)
         renderer.set_lighting(self.lighting)
-        self.effects: dict[str, CameraEffects] = {}
-        for name, cam in self.cameras.items():
-            fx_cfg = env.effects_for(name)
-            if fx_cfg.active:
-                self.effects[name] = CameraEffects(
-                    fx_cfg, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, camera_rng(env.seed, name)
-                )
+        # each camera's stage, built from one spec here (for the drop decisions, made before a frame renders) and in
+        # the effects process (the pixels)
+        self._stages = {
+            name: StageSpec(env.effects_for(name), cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, env.seed)
+            for name, cam in self.cameras.items()
+            if env.effects_for(name).active
+        }
+        self.effects: dict[str, CameraEffects] = {name: spec.build(name) for name, spec in self._stages.items()}
         self._depth_rng = camera_rng(env.seed, "depth_noise")
         fc = cfg.camera_faults
         self.camera_faults: CameraFaults[CameraOutput] = CameraFaults(
@@ -524,14 +525,13 @@ class BridgeEngine:
         """The camera-effects process (:mod:`uav_sim_bridge.shell.effects_process`): every camera's effects, one frame
         after the other in submission order (deterministic), beside the GL thread and without its GIL."""
         if self._fx_process is None:
-            env = self.cfg.environment
-            self._fx_process = EffectsProcess(
-                {
-                    name: StageSpec(fx.cfg, fx.width, fx.height, fx.fx, fx.fy, fx.cx, fx.cy, env.seed)
-                    for name, fx in self.effects.items()
-                }
-            )
+            self._fx_process = EffectsProcess(self._stages)
         return self._fx_process
+
+    @property
+    def effects_pid(self) -> int | None:
+        """The effects process's pid (None until the first frame with effects starts it)."""
+        return self._fx_process.pid if self._fx_process is not None else None
 
     def wait_effects(self) -> None:
         """Wait until the effects process has finished every frame submitted so far (a benchmark charges this
