@@ -40,3 +40,5 @@ def test_rostest(test_file: Path) -> None:
     tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-80:])
     assert proc.returncode == 0, f"rostest {test_file.name} failed with {proc.returncode} (full log: {log}):\n{tail}"
     assert "RESULT: SUCCESS" in proc.stdout, f"rostest {test_file.name} did not report success:\n{tail}"
+    # a check node that crashes before its first test case leaves rostest reporting success over no test at all
+    assert " * TESTS: 0" not in proc.stdout, f"rostest {test_file.name} ran no test case:\n{tail}"

@@ -15,6 +15,12 @@
 // Threads: services and timers run in the main thread; incoming clouds are queued by their own spinner thread
 // and inserted by a worker thread, so a slow insertion or a slow publish never stalls the others, and a full
 // queue is counted, not silently lost.
+//
+// Causal lockstep (/lockstep/causal true, docs/lockstep.md and docs/map_server.md): the node is a participant
+// (lockstep_participant.h). Its inputs (the frames, /tf, /tf_static) are counted and dispatched step by step in
+// the main thread, which also inserts the frames whose transform is known, fires the layers and map timers in
+// simulated time and applies service requests at step boundaries; there is no worker thread and no queue_full.
+#include "lockstep_participant.h"
 #include "ros_conversions.h"
 
 #include <uav_mapping/depth_filter.h>
@@ -49,6 +55,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <thread>
@@ -232,8 +239,14 @@ double msBetween(std::chrono::steady_clock::time_point a, std::chrono::steady_cl
 
 class MapServerNode {
  public:
-  MapServerNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Params& params)
-      : nh_(nh), pnh_(pnh), p_(params), mapper_(params.mapper), tf_listener_(tf_buffer_) {
+  MapServerNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Params& params,
+                const lockstep::Settings& lockstep)
+      : nh_(nh),
+        pnh_(pnh),
+        p_(params),
+        mapper_(params.mapper),
+        lockstep_(lockstep),
+        tf_listener_(lockstep_.causal() ? nullptr : std::make_unique<tf2_ros::TransformListener>(tf_buffer_)) {
     layers_factor_ = p_.layers_resolution_m > 0.0
                          ? static_cast<int>(std::lround(p_.layers_resolution_m / p_.mapper.resolution_m))
                          : 1;
@@ -244,30 +257,44 @@ class MapServerNode {
       new_subscriber_ = true;
     };
     const ros::SubscriberStatusCallback none;
-    pub_binary_ = nh_.advertise<octomap_msgs::Octomap>("octomap_binary", 1, on_connect, none, ros::VoidConstPtr(), p_.latch);
-    pub_full_ = nh_.advertise<octomap_msgs::Octomap>("octomap_full", 1, on_connect, none, ros::VoidConstPtr(), p_.latch);
-    pub_markers_ = nh_.advertise<visualization_msgs::MarkerArray>("occupied_cells_vis_array", 1, on_connect, none,
-                                                                   ros::VoidConstPtr(), p_.latch);
-    pub_projected_ =
-        nh_.advertise<nav_msgs::OccupancyGrid>("projected_map", 5, on_connect, none, ros::VoidConstPtr(), p_.latch);
-    pub_centers_ = nh_.advertise<sensor_msgs::PointCloud2>("octomap_point_cloud_centers", 1, on_connect, none,
-                                                           ros::VoidConstPtr(), p_.latch);
-    pub_layers_ = pnh_.advertise<uav_msgs::GridLayers>("layers", 1, true);
-    pub_stats_ = pnh_.advertise<uav_msgs::MapInsertStats>("insert_stats", 50);
-    srv_binary_ = nh_.advertiseService("octomap_binary", &MapServerNode::onGetBinary, this);
-    srv_full_ = nh_.advertiseService("octomap_full", &MapServerNode::onGetFull, this);
-    srv_reset_ = pnh_.advertiseService("reset", &MapServerNode::onReset, this);
-    srv_clear_ = pnh_.advertiseService("clear_bbx", &MapServerNode::onClearBbx, this);
-    srv_layers_ = pnh_.advertiseService("get_layers", &MapServerNode::onGetLayers, this);
-    srv_save_ = pnh_.advertiseService("save", &MapServerNode::onSave, this);
-    srv_load_ = pnh_.advertiseService("load", &MapServerNode::onLoad, this);
-    srv_export_ = pnh_.advertiseService("export_occupied", &MapServerNode::onExport, this);
-    timer_layers_ = nh_.createTimer(ros::Duration(1.0 / p_.layers_rate_hz), &MapServerNode::onLayersTimer, this);
-    if (p_.map_publish_rate_hz > 0.0)
-      timer_map_ = nh_.createWallTimer(ros::WallDuration(1.0 / p_.map_publish_rate_hz), &MapServerNode::onMapTimer, this);
+    // Counted by the lockstep (queue 0: never dropped) when causal; roscpp's own publishers otherwise.
+    pub_binary_ = lockstep_.advertise<octomap_msgs::Octomap>(nh_, "octomap_binary", 1, p_.latch, on_connect);
+    pub_full_ = lockstep_.advertise<octomap_msgs::Octomap>(nh_, "octomap_full", 1, p_.latch, on_connect);
+    pub_markers_ =
+        lockstep_.advertise<visualization_msgs::MarkerArray>(nh_, "occupied_cells_vis_array", 1, p_.latch, on_connect);
+    pub_projected_ = lockstep_.advertise<nav_msgs::OccupancyGrid>(nh_, "projected_map", 5, p_.latch, on_connect);
+    pub_centers_ =
+        lockstep_.advertise<sensor_msgs::PointCloud2>(nh_, "octomap_point_cloud_centers", 1, p_.latch, on_connect);
+    pub_layers_ = lockstep_.advertise<uav_msgs::GridLayers>(pnh_, "layers", 1, true);
+    pub_stats_ = lockstep_.advertise<uav_msgs::MapInsertStats>(pnh_, "insert_stats", 50);
+    // Applied at once, or at step boundaries when causal (the service thread waits for the step thread).
+    srv_binary_ = advertiseService<octomap_msgs::GetOctomap>(nh_, "octomap_binary", &MapServerNode::onGetBinary);
+    srv_full_ = advertiseService<octomap_msgs::GetOctomap>(nh_, "octomap_full", &MapServerNode::onGetFull);
+    srv_reset_ = advertiseService<std_srvs::Empty>(pnh_, "reset", &MapServerNode::onReset);
+    srv_clear_ = advertiseService<octomap_msgs::BoundingBoxQuery>(pnh_, "clear_bbx", &MapServerNode::onClearBbx);
+    srv_layers_ = advertiseService<uav_msgs::GetGridLayers>(pnh_, "get_layers", &MapServerNode::onGetLayers);
+    srv_save_ = advertiseService<uav_msgs::MapFile>(pnh_, "save", &MapServerNode::onSave);
+    srv_load_ = advertiseService<uav_msgs::MapFile>(pnh_, "load", &MapServerNode::onLoad);
+    srv_export_ = advertiseService<uav_msgs::ExportVoxels>(pnh_, "export_occupied", &MapServerNode::onExport);
+    if (lockstep_.causal()) {
+      // Simulated time, fired from the step (the timers of docs/lockstep.md).
+      lockstep_.timer(1.0 / p_.layers_rate_hz, [this](double) { publishLayers(); }, "layers");
+      if (p_.map_publish_rate_hz > 0.0)
+        lockstep_.timer(1.0 / p_.map_publish_rate_hz, [this](double) { mapTick(false); }, "map");
+    } else {
+      timer_layers_ = nh_.createTimer(ros::Duration(1.0 / p_.layers_rate_hz), &MapServerNode::onLayersTimer, this);
+      if (p_.map_publish_rate_hz > 0.0)
+        timer_map_ =
+            nh_.createWallTimer(ros::WallDuration(1.0 / p_.map_publish_rate_hz), &MapServerNode::onMapTimer, this);
+    }
+    // Autosave stays on the wall clock in every mode: it writes a file, nobody's input.
     if (p_.autosave_interval_s > 0.0)
       timer_autosave_ =
           nh_.createWallTimer(ros::WallDuration(p_.autosave_interval_s), &MapServerNode::onAutosaveTimer, this);
+    if (lockstep_.causal()) {
+      subscribeLockstepInputs();
+      return;
+    }
     worker_ = std::thread(&MapServerNode::workerLoop, this);
     // Clouds have their own callback queue and spinner thread: queueing a cloud never waits behind a timer or a
     // service of the main thread (e.g. building markers of a large map), so drops are counted, not silent.
@@ -286,17 +313,10 @@ class MapServerNode {
       if (p_.rgbd_color) {
         sub_color_.subscribe(nh_, "color_in", kTopicQueue, hints, &cloud_queue_);
         sync_rgbd_ = std::make_unique<RgbdSync>(sub_depth_, sub_color_, sub_info_, kSyncQueue);
-        sync_rgbd_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
-                                                 boost::placeholders::_2, boost::placeholders::_3));
-        sync_rgbd_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
-                                                     boost::placeholders::_2, boost::placeholders::_3));
       } else {
         sync_depth_ = std::make_unique<DepthSync>(sub_depth_, sub_info_, kSyncQueue);
-        sync_depth_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
-                                                  sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
-        sync_depth_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
-                                                      sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
       }
+      connectSynchronizer();
       inputs = "depth_in " + sub_depth_.getTopic() + (p_.rgbd_color ? ", color_in " + sub_color_.getTopic() : "") +
                ", camera_info_in " + sub_info_.getTopic();
     } else {
@@ -308,12 +328,11 @@ class MapServerNode {
     }
     cloud_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &cloud_queue_);
     cloud_spinner_->start();
-    ROS_INFO_STREAM("map_server: backend " << toString(p_.mapper.backend) << ", " << p_.mapper.resolution_m
-                                           << " m, insert_mode " << toString(p_.mapper.mode) << ", " << inputs
-                                           << " -> frame " << p_.frame_id);
+    logStart(inputs);
   }
 
   ~MapServerNode() {
+    lockstep_.shutdown();
     if (cloud_spinner_) cloud_spinner_->stop();
     sub_cloud_.shutdown();
     sub_depth_.unsubscribe();
@@ -328,7 +347,79 @@ class MapServerNode {
     if (autosave_thread_.joinable()) autosave_thread_.join();
   }
 
+  /// ros::spin(), or the causal lockstep's step loop (throws lockstep::LockstepError).
+  void spin() { lockstep_.spin(); }
+
  private:
+  void logStart(const std::string& inputs) const {
+    std::string mode;
+    if (lockstep_.causal())
+      mode = " (causal lockstep, lookahead " + std::to_string(lockstep_.settings().lookahead_steps) + " steps)";
+    ROS_INFO_STREAM("map_server: backend " << toString(p_.mapper.backend) << ", " << p_.mapper.resolution_m
+                                           << " m, insert_mode " << toString(p_.mapper.mode) << ", " << inputs
+                                           << " -> frame " << p_.frame_id << mode);
+  }
+
+  template <class Srv>
+  ros::ServiceServer advertiseService(ros::NodeHandle& nh, const std::string& name,
+                                      bool (MapServerNode::*handler)(typename Srv::Request&, typename Srv::Response&)) {
+    using Req = typename Srv::Request;
+    using Res = typename Srv::Response;
+    return lockstep_.advertiseService<Req, Res>(nh, name,
+                                                [this, handler](Req& req, Res& res) { return (this->*handler)(req, res); });
+  }
+
+  /// The synchroniser's outputs: complete frames, and frames it gave up on.
+  void connectSynchronizer() {
+    if (sync_rgbd_) {
+      sync_rgbd_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
+                                               boost::placeholders::_2, boost::placeholders::_3));
+      sync_rgbd_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
+                                                   boost::placeholders::_2, boost::placeholders::_3));
+    } else {
+      sync_depth_->registerCallback(boost::bind(&MapServerNode::onRgbd, this, boost::placeholders::_1,
+                                                sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
+      sync_depth_->registerDropCallback(boost::bind(&MapServerNode::onUnsynchronized, this, boost::placeholders::_1,
+                                                    sensor_msgs::ImageConstPtr(), boost::placeholders::_2));
+    }
+  }
+
+  /// Causal lockstep: the frames and tf are counted inputs, dispatched in the step thread in the fixed order
+  /// (/tf_static, /tf, then the frames' topics as declared); depth, colour and camera info go through the
+  /// synchroniser in that order. Frames wait in pending_ for insertPending(), the step hook.
+  void subscribeLockstepInputs() {
+    std::string inputs;
+    if (p_.rgbd_input) {
+      constexpr uint32_t kSyncQueue = 10;
+      if (p_.rgbd_color) {
+        sync_rgbd_ = std::make_unique<RgbdSync>(kSyncQueue);
+        lockstep_.subscribe<sensor_msgs::Image>(nh_, "depth_in",
+                                                [this](const sensor_msgs::ImageConstPtr& m) { sync_rgbd_->add0(m); });
+        lockstep_.subscribe<sensor_msgs::Image>(nh_, "color_in",
+                                                [this](const sensor_msgs::ImageConstPtr& m) { sync_rgbd_->add1(m); });
+        lockstep_.subscribe<sensor_msgs::CameraInfo>(
+            nh_, "camera_info_in", [this](const sensor_msgs::CameraInfoConstPtr& m) { sync_rgbd_->add2(m); });
+      } else {
+        sync_depth_ = std::make_unique<DepthSync>(kSyncQueue);
+        lockstep_.subscribe<sensor_msgs::Image>(nh_, "depth_in",
+                                                [this](const sensor_msgs::ImageConstPtr& m) { sync_depth_->add0(m); });
+        lockstep_.subscribe<sensor_msgs::CameraInfo>(
+            nh_, "camera_info_in", [this](const sensor_msgs::CameraInfoConstPtr& m) { sync_depth_->add1(m); });
+      }
+      connectSynchronizer();
+      inputs = "depth_in " + nh_.resolveName("depth_in") +
+               (p_.rgbd_color ? ", color_in " + nh_.resolveName("color_in") : "") + ", camera_info_in " +
+               nh_.resolveName("camera_info_in");
+    } else {
+      lockstep_.subscribe<sensor_msgs::PointCloud2>(
+          nh_, "cloud_in", [this](const sensor_msgs::PointCloud2ConstPtr& m) { onCloud(m); });
+      inputs = "cloud_in " + nh_.resolveName("cloud_in");
+    }
+    lockstep_.feedTf(tf_buffer_);
+    lockstep_.onStep([this](uint64_t, double) { insertPending(); });
+    logStart(inputs);
+  }
+
   /// One sensor frame waiting for its transform and insertion: a cloud, or a depth image (+ colour) and its
   /// camera info.
   struct Pending {
@@ -391,6 +482,11 @@ class MapServerNode {
 
   void enqueue(Pending item) {
     item.received = std::chrono::steady_clock::now();
+    if (lockstep_.causal()) {  // the step thread; insertPending() takes it on from here
+      item.id = ++next_id_;
+      pending_.push_back(std::move(item));
+      return;
+    }
     std::unique_lock<std::mutex> lock(queue_mutex_);
     item.id = ++next_id_;
     if (queue_.size() >= static_cast<std::size_t>(p_.queue_size)) {
@@ -448,6 +544,45 @@ class MapServerNode {
       if (!have_tf) {
         drop(item, "no_transform",
              "no transform " + p_.frame_id + " <- '" + source + "' at the cloud's stamp: " + error, wait_ms);
+        continue;
+      }
+      insert(item, tf, wait_ms);
+    }
+  }
+
+  /// Causal lockstep, once a step after its inputs and timers: insert the pending frames from the head while the
+  /// transform at the frame's stamp is known. A head frame whose transform is not known yet waits for a later
+  /// step, unless the step's time is more than tf_wait_s past its stamp (simulated time): then it is dropped
+  /// (no_transform). Every decision is a function of the step, the same in every run.
+  void insertPending() {
+    const ros::Time now = lockstep_.now();
+    const ros::Duration budget(p_.tf_wait_s);
+    while (!pending_.empty()) {
+      const Pending& head = pending_.front();
+      const std::string source = head.header.frame_id;
+      geometry_msgs::TransformStamped tf;
+      std::string error;
+      bool have_tf = false;
+      if (source.empty()) {
+        error = "the cloud has an empty frame_id";
+      } else if (tf_buffer_.canTransform(p_.frame_id, source, head.header.stamp, &error)) {
+        try {
+          tf = tf_buffer_.lookupTransform(p_.frame_id, source, head.header.stamp);
+          have_tf = true;
+        } catch (const tf2::TransformException& e) {
+          error = e.what();
+        }
+      } else if (now - head.header.stamp <= budget) {
+        return;  // its transform may still come: this frame and those behind it wait for a later step
+      }
+      const Pending item = std::move(pending_.front());
+      pending_.pop_front();
+      const double wait_ms = msBetween(item.received, std::chrono::steady_clock::now());
+      if (!have_tf) {
+        drop(item, "no_transform",
+             "no transform " + p_.frame_id + " <- '" + source + "' at the cloud's stamp within tf_wait_s (" +
+                 std::to_string(p_.tf_wait_s) + " s of simulated time): " + error,
+             wait_ms);
         continue;
       }
       insert(item, tf, wait_ms);
@@ -574,7 +709,10 @@ class MapServerNode {
 
   // ---------------------------------------------------------------------------------------------- outputs
 
-  void onLayersTimer(const ros::TimerEvent&) {
+  void onLayersTimer(const ros::TimerEvent&) { publishLayers(); }
+
+  /// The layers, when the map changed since they were last published.
+  void publishLayers() {
     LayersSnapshot snap;
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
@@ -582,17 +720,22 @@ class MapServerNode {
       layers_changed_ = false;
       snap = mapper_.layers(layers_factor_);
     }
-    pub_layers_.publish(ros_conv::layersToMsg(snap, p_.frame_id, ros::Time::now()));
+    pub_layers_.publish(ros_conv::layersToMsg(snap, p_.frame_id, lockstep_.now()));
   }
 
-  void onMapTimer(const ros::WallTimerEvent&) {
+  void onMapTimer(const ros::WallTimerEvent&) { mapTick(true); }
+
+  /// The map outputs, when the map changed; `late_subscribers`: also when an output got a subscriber since the
+  /// last publish (latch off). Not in the causal lockstep: when a subscriber connects depends on timing, and what
+  /// a participant publishes must not.
+  void mapTick(bool late_subscribers) {
     bool changed;
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
       changed = map_changed_;
     }
     // A late subscriber (latch off): resend the current map once something has been published.
-    const bool late_subscriber = !p_.latch && published_once_ && new_subscriber_.exchange(false);
+    const bool late_subscriber = late_subscribers && !p_.latch && published_once_ && new_subscriber_.exchange(false);
     if (changed || late_subscriber) publishMapOutputs();
   }
 
@@ -605,7 +748,7 @@ class MapServerNode {
   }
 
   void publishMapOutputs() {
-    const ros::Time stamp = ros::Time::now();
+    const ros::Time stamp = lockstep_.now();
     const bool all = p_.latch;
     const bool want_binary = all || pub_binary_.getNumSubscribers() > 0;
     const bool want_full = all || pub_full_.getNumSubscribers() > 0;
@@ -622,12 +765,16 @@ class MapServerNode {
     {
       std::lock_guard<std::mutex> lock(map_mutex_);
       map_changed_ = false;
-      // Counting leaves walks the whole map: refresh these statistics at most every few seconds.
+      // Counting leaves walks the whole map: refresh these statistics at most every few seconds (of simulated
+      // time in the causal lockstep, so that insert_stats read the same in every run).
       const auto now = std::chrono::steady_clock::now();
-      if (msBetween(size_stats_at_, now) > 5000.0) {
+      const bool refresh = lockstep_.causal() ? !size_stats_stamp_ || stamp - *size_stats_stamp_ >= ros::Duration(5.0)
+                                              : msBetween(size_stats_at_, now) > 5000.0;
+      if (refresh) {
         map_leaves_ = mapper_.map().leafCount();
         map_memory_ = mapper_.map().memoryBytes();
         size_stats_at_ = now;
+        size_stats_stamp_ = stamp;
       }
       if (want_binary || want_full) {
         std::unique_ptr<UavOcTree> converted;
@@ -660,14 +807,14 @@ class MapServerNode {
   bool onGetBinary(octomap_msgs::GetOctomap::Request&, octomap_msgs::GetOctomap::Response& res) {
     std::lock_guard<std::mutex> lock(map_mutex_);
     std::unique_ptr<UavOcTree> converted;
-    res.map = ros_conv::octomapToMsg(octreeFor(converted), true, p_.frame_id, ros::Time::now());
+    res.map = ros_conv::octomapToMsg(octreeFor(converted), true, p_.frame_id, lockstep_.now());
     return true;
   }
 
   bool onGetFull(octomap_msgs::GetOctomap::Request&, octomap_msgs::GetOctomap::Response& res) {
     std::lock_guard<std::mutex> lock(map_mutex_);
     std::unique_ptr<UavOcTree> converted;
-    res.map = ros_conv::octomapToMsg(octreeFor(converted), false, p_.frame_id, ros::Time::now());
+    res.map = ros_conv::octomapToMsg(octreeFor(converted), false, p_.frame_id, lockstep_.now());
     return true;
   }
 
@@ -700,7 +847,7 @@ class MapServerNode {
       std::lock_guard<std::mutex> lock(map_mutex_);
       snap = mapper_.layers(layers_factor_);
     }
-    res.layers = ros_conv::layersToMsg(snap, p_.frame_id, ros::Time::now());
+    res.layers = ros_conv::layersToMsg(snap, p_.frame_id, lockstep_.now());
     return true;
   }
 
@@ -831,8 +978,10 @@ class MapServerNode {
   Params p_;
   Mapper mapper_;
   int layers_factor_ = 1;
-  tf2_ros::Buffer tf_buffer_;
-  tf2_ros::TransformListener tf_listener_;
+  lockstep::Participant lockstep_;  // before everything it counts or dispatches to
+  tf2_ros::Buffer tf_buffer_;       // causal: fed by the dispatched /tf and /tf_static, no listener
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+  std::deque<Pending> pending_;  // causal: frames waiting for their transform (step thread only)
 
   std::atomic<bool> new_subscriber_{false};  // a map output got a subscriber since the last publish
   std::atomic<bool> published_once_{false};
@@ -861,6 +1010,7 @@ class MapServerNode {
   std::atomic<uint64_t> map_leaves_{0};
   std::atomic<uint64_t> map_memory_{0};
   std::chrono::steady_clock::time_point size_stats_at_{};
+  std::optional<ros::Time> size_stats_stamp_;  // causal: the step time of the last refresh
 
   ros::CallbackQueue cloud_queue_;
   std::unique_ptr<ros::AsyncSpinner> cloud_spinner_;
@@ -870,7 +1020,8 @@ class MapServerNode {
   message_filters::Subscriber<sensor_msgs::CameraInfo> sub_info_;
   std::unique_ptr<RgbdSync> sync_rgbd_;
   std::unique_ptr<DepthSync> sync_depth_;
-  ros::Publisher pub_binary_, pub_full_, pub_markers_, pub_projected_, pub_centers_, pub_layers_, pub_stats_;
+  lockstep::CountedPublisher pub_binary_, pub_full_, pub_markers_, pub_projected_, pub_centers_, pub_layers_,
+      pub_stats_;
   ros::ServiceServer srv_binary_, srv_full_, srv_reset_, srv_clear_, srv_layers_, srv_save_, srv_load_, srv_export_;
   ros::Timer timer_layers_;
   ros::WallTimer timer_map_, timer_autosave_;
@@ -883,6 +1034,9 @@ class MapServerNode {
 // 1 a runtime failure.
 constexpr int kExitFailure = 1;
 constexpr int kExitConfig = 2;
+/// The map server's lookahead in the causal lockstep (docs/lockstep.md): what it publishes while processing step
+/// k is its consumers' input at step k + 3, so it may insert while the bridge simulates and renders two more steps.
+constexpr int kLockstepLookaheadSteps = 3;
 
 int main(int argc, char** argv) {
   // Line-buffered output, so that logs reach a pipe (roslaunch, test harnesses) even if the node is killed.
@@ -891,17 +1045,20 @@ int main(int argc, char** argv) {
   ros::NodeHandle nh;
   ros::NodeHandle pnh("~");
   uav_mapping::Params params;
+  uav_mapping::lockstep::Settings lockstep;
   try {
     std::vector<std::string> warnings;
     params = uav_mapping::readParams(pnh, warnings);
     for (const auto& w : warnings) ROS_WARN("map_server: %s", w.c_str());
+    // The global /lockstep/* parameters (docs/lockstep.md); the map server's default lookahead is 3 steps.
+    lockstep = uav_mapping::lockstep::readSettings(ros::this_node::getName(), kLockstepLookaheadSteps);
   } catch (const std::exception& e) {
     ROS_FATAL("map_server: invalid configuration: %s", e.what());
     return kExitConfig;
   }
   try {
-    uav_mapping::MapServerNode node(nh, pnh, params);
-    ros::spin();
+    uav_mapping::MapServerNode node(nh, pnh, params, lockstep);
+    node.spin();
   } catch (const std::exception& e) {
     ROS_FATAL("map_server: %s", e.what());
     return kExitFailure;
