@@ -61,6 +61,10 @@ PURE_COMMON = frozenset(
         "uav_common.exit_codes",
         "uav_common.frames",
         "uav_common.geo",
+        "uav_common.lockstep",
+        "uav_common.lockstep.markers",
+        "uav_common.lockstep.protocol",
+        "uav_common.lockstep.timers",
         "uav_common.pointcloud",
         "uav_common.robot",
         "uav_common.rotations",
@@ -116,7 +120,21 @@ def project_packages(repo: Path) -> list[Package]:
     common = Package(
         "uav_common",
         repo / "uav_common" / "src",
-        frozenset({"numpy", "yaml", "pymavlink", "rospy", "sensor_msgs"}),
+        # rosgraph, tf2_ros, tf2_msgs, std_msgs and uav_msgs: the causal lockstep's ROS shell (ros/lockstep.py)
+        frozenset(
+            {
+                "numpy",
+                "yaml",
+                "pymavlink",
+                "rospy",
+                "rosgraph",
+                "sensor_msgs",
+                "std_msgs",
+                "tf2_ros",
+                "tf2_msgs",
+                "uav_msgs",
+            }
+        ),
     )
     sitl = Package(
         "sitl",

@@ -34,3 +34,9 @@ class EndpointError(RouterError, ResourceError):
 
 class SerialUnavailableError(EndpointError):
     """A serial endpoint was configured but pyserial is not installed."""
+
+
+class LockstepError(RouterError):
+    """The lockstep's step markers broke (docs/mavlink_router.md, "Lockstep"): a count that does not balance (a
+    lost or duplicated message), a marker for an unexpected step, a malformed marker. The router stops with exit
+    status 1; the message names the endpoint, the step and the counts."""

@@ -31,3 +31,9 @@ class LinkError(SitlError, ResourceError):
 
 class FdmError(SitlError):
     """JSBSim could not load the aircraft or produced a non-finite state."""
+
+
+class LockstepError(SitlError):
+    """The lockstep's MAVLink step markers broke (docs/lockstep.md): a count that does not balance (a lost or
+    duplicated message), a marker for an unexpected step, a malformed marker. The run is no longer
+    reproducible; the SITL stops with exit status 1 and this message names the peer and the counts."""

@@ -9,7 +9,14 @@ Lockstep: simulation time advances only on SIM_STEP grants from the
 simulation link. Before executing a grant every pending inbound message on
 all links is processed; then the steps run, the state goes out on the
 simulation link and the grant is ACKed. While no grant comes, heartbeats go
-out on wall time so clients stay connected.
+out on wall time so clients stay connected (but never to a lockstep peer).
+
+Lockstep peers (docs/lockstep.md: a router or client that said HELLO; see
+:mod:`sitl.shell.lockstep_links`): before executing grant ``g`` the loop waits
+until each has sent its STEP(``g - 1``) marker (logging every
+:attr:`Simulator.LOCKSTEP_LOG_EVERY_S` wall seconds what it waits for) and handles
+exactly their messages before it; after the grant's state and telemetry each gets
+STEP(``g``). A count that does not balance stops the run (LockstepError).
 """
 
 from __future__ import annotations
@@ -29,8 +36,10 @@ from sitl.config import SitlConfig, StreamProfile, TimeMode, params_for_config
 from sitl.core.params import ParamTable
 from sitl.core.protocol import MavSeverity
 from sitl.errors import ParamFileError, SitlConfigError, SitlError
+from sitl.shell.encode import sim_time_us
 from sitl.shell.gateway import Gateway
-from sitl.shell.links import MavLink, TcpServerLink, UdpLink, load_signing_key
+from sitl.shell.links import MavLink, Received, TcpServerLink, UdpLink, frame_only, load_signing_key
+from sitl.shell.lockstep_links import LinkPeerIo, LockstepPeers
 from sitl.shell.param_file import ParamFile
 from sitl.shell.sim_link import SimLink
 from sitl.vehicle import Vehicle
@@ -59,6 +68,8 @@ class Simulator:
     HOUSEKEEPING_EVERY_STEPS = 25
     # telemetry frames are batched into datagrams and flushed at least this often (wall clock)
     FLUSH_INTERVAL_S = 0.002
+    # while a grant waits for the lockstep peers' markers, say so this often (wall clock)
+    LOCKSTEP_LOG_EVERY_S = 30.0
 
     def __init__(
         self, cfg: SitlConfig, *, reset_params: bool = False, clock: Callable[[], float] = time.monotonic
@@ -79,6 +90,7 @@ class Simulator:
         self.links: dict[str, tuple[MavLink, StreamProfile]] = {}
         self.sim_link: SimLink | None = None
         self.gateway: Gateway | None = None
+        self.peers: LockstepPeers | None = None
         epoch = cfg.time.unix_epoch_s if cfg.time.unix_epoch_s is not None else time.time()
         try:
             self._open_links(epoch)
@@ -148,6 +160,7 @@ class Simulator:
             self.links["tcp"] = (tcp, tc.profile)
             self.selector.register(tcp.server, selectors.EVENT_READ, ("tcp-server", "tcp"))
             tcp.on_drop = self._unregister
+            tcp.on_forget = self._forget_peer
         self.gateway = Gateway(
             self.vehicle,
             self.links,
@@ -155,6 +168,14 @@ class Simulator:
             component_id=mav.component_id,
             unix_epoch_s=epoch,
             persist_params=self._persist,
+        )
+        lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+        for link, _ in self.links.values():
+            link.keep_unknown = lockstep  # a lockstep peer's count includes every frame it sent
+        self.peers = LockstepPeers(
+            lockstep=lockstep,
+            io=LinkPeerIo({name: link for name, (link, _) in self.links.items()}, self.gateway.encoder.factory),
+            t_sim_us=lambda: sim_time_us(self.vehicle.t_s),
         )
         sl = cfg.sim_link
         if sl.enabled:
@@ -179,6 +200,10 @@ class Simulator:
     def _unregister(self, sock: Any) -> None:
         with contextlib.suppress(KeyError, ValueError):
             self.selector.unregister(sock)
+
+    def _forget_peer(self, route: Any) -> None:
+        if self.peers is not None:
+            self.peers.forget(route)
 
     def ports(self) -> dict[str, int]:
         """Bound local ports by link name (useful with port 0)."""
@@ -215,7 +240,7 @@ class Simulator:
                 link = self.links[name][0]
                 assert isinstance(link, UdpLink)
                 for rx in link.read():
-                    gateway.handle(rx, wall)
+                    self._received(rx, wall)
             elif kind == "tcp-server":
                 tcp = self.links[name][0]
                 assert isinstance(tcp, TcpServerLink)
@@ -229,11 +254,19 @@ class Simulator:
                 assert isinstance(tcp, TcpServerLink)
                 client = tcp.clients.get(name)
                 for rx in tcp.read_client(name):
-                    gateway.handle(rx, wall)
+                    self._received(rx, wall)
                 if name not in tcp.clients and client is not None:
                     log.info("TCP client %s:%d disconnected", *client.addr)
             elif kind == "sim" and self.sim_link is not None:
                 self.sim_link.read()
+
+    def _received(self, rx: Received, wall: float) -> None:
+        """One inbound message: a lockstep marker or a lockstep peer's message is queued, the rest handled now."""
+        assert self.gateway is not None
+        if self.peers is not None and self.peers.offer(rx):
+            return
+        if not frame_only(rx.msg):
+            self.gateway.handle(rx, wall)
 
     def _step(self, wall_s: float) -> None:
         self.vehicle.step(wall_s)
@@ -331,6 +364,8 @@ class Simulator:
         assert sim is not None
         gateway = self.gateway
         assert gateway is not None
+        peers = self.peers
+        assert peers is not None
         end = math.inf if max_sim_time_s is None else self.vehicle.t_s + max_sim_time_s
         while not self._stop.is_set() and self.vehicle.t_s < end - 1e-9:
             self.poll(0.05 if not sim.grants else 0.0)
@@ -340,27 +375,57 @@ class Simulator:
             now = self._clock()
             grants, sim.grants = sim.grants, []
             for grant in grants:
+                if not self._await_peers(grant.number - 1):
+                    return
+                now = self._clock()
+                for rx in peers.release(grant.number - 1):
+                    gateway.handle(rx, now)
                 for _ in range(grant.steps):
                     self._step(now)
                 sim.send_state()
                 gateway.flush()
+                peers.end_step(grant.number, sim_time_us(self.vehicle.t_s))
                 sim.ack_grant(grant)
             if not grants:
                 self._wall_heartbeat(now)
             self._housekeeping(now)
+
+    def _await_peers(self, step: int) -> bool:
+        """Poll until every lockstep peer has closed ``step`` (False: stopped meanwhile). Never gives up."""
+        peers = self.peers
+        assert peers is not None
+        if peers.ready(step):
+            return True
+        start = self._clock()
+        next_log = start + self.LOCKSTEP_LOG_EVERY_S
+        while not peers.ready(step):
+            if self._stop.is_set():
+                return False
+            self.poll(0.05)
+            now = self._clock()
+            if now >= next_log:
+                next_log = now + self.LOCKSTEP_LOG_EVERY_S
+                log.warning(
+                    "grant %d has waited %.0f s for the STEP(%d) marker of: %s",
+                    step + 1,
+                    now - start,
+                    step,
+                    peers.waiting_for(step),
+                )
+        return True
 
     def _wall_heartbeat(self, now: float) -> None:
         period = self.cfg.mavlink.paused_heartbeat_period_s
         if now - self._last_wall_heartbeat >= period:
             self._last_wall_heartbeat = now
             assert self.gateway is not None
-            self.gateway.send_heartbeat()
+            self.gateway.send_heartbeat(skip=self.peers.routes() if self.peers is not None else frozenset())
             if self.sim_link is not None:
                 self.sim_link.send_heartbeat()
 
     def _housekeeping(self, now: float) -> None:
         window = now - self._load_window_start
-        if window >= 1.0:
+        if window >= 1.0 and self.cfg.time.mode is not TimeMode.LOCKSTEP:  # lockstep: SYS_STATUS load stays 0
             assert self.gateway is not None
             self.gateway.encoder.load_permille = round(1000.0 * max(0.0, 1.0 - self._idle_s / window))
             self._load_window_start = now
@@ -387,6 +452,8 @@ class Simulator:
             log.info("link %s: %s", name, link.stats.summary())
         if self.sim_link is not None:
             log.info("link sim: %s", self.sim_link.stats.summary())
+        if self.peers is not None and self.cfg.time.mode is TimeMode.LOCKSTEP:
+            log.info("%s", self.peers.summary())
 
     def link_stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {name: link.stats for name, (link, _) in self.links.items()}

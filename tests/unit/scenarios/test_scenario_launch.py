@@ -90,3 +90,39 @@ def test_the_scenario_chooses_the_autopilot_personality(tmp_path: Path) -> None:
     bad.write_text("autopilot: betaflight\n" + text)
     with pytest.raises(ScenarioConfigError, match=r"autopilot.*'px4', 'ardupilot'"):
         load_scenario(bad)
+
+
+def test_lockstep_runs_put_the_router_in_lockstep_with_the_sitl(tmp_path: Path) -> None:
+    """Every lockstep run: the router's lossy links count in simulated time (its clock is the SITL's markers);
+    a deterministic run also invites the controller's and the odometry node's endpoints to say HELLO."""
+    from mavlink_router.core.config import LockstepRole  # noqa: PLC0415
+    from uav_scenarios.core.config import PoseSource  # noqa: PLC0415
+
+    s = load_scenario(REPO / "config/scenarios/loiter.yaml")
+    s = replace(s, pose_source=PoseSource.AUTOPILOT)
+    roles = {}
+    for time in (TimeSpec(), TimeSpec(mode=TimeMode.LOCKSTEP), TimeSpec(mode=TimeMode.LOCKSTEP, deterministic=True)):
+        cfg = parse_config_text(router_conf(PORTS, None, replace(s, time=time)), source="run")
+        roles[time.mode, time.deterministic] = (
+            cfg.general.lockstep,
+            {e.name: e.options.lockstep for e in (*cfg.tcp, *cfg.udp)},
+        )
+    none = dict.fromkeys(("sitl", "gcs", "controller", "mavsdk", "odometry", "adhoc"))
+    assert roles[TimeMode.FREE, False] == (False, none)
+    assert roles[TimeMode.LOCKSTEP, False] == (True, {**none, "sitl": LockstepRole.AUTOPILOT})
+    invited = {"controller": LockstepRole.CLIENT, "odometry": LockstepRole.CLIENT}
+    assert roles[TimeMode.LOCKSTEP, True] == (True, {**none, "sitl": LockstepRole.AUTOPILOT, **invited})
+    assert not parse_config_text(router_conf(PORTS, None), source="run").general.lockstep
+
+
+def test_a_deterministic_sitl_has_no_wall_clock_floor_and_a_fixed_epoch(tmp_path: Path) -> None:
+    s = load_scenario(REPO / "config/scenarios/loiter.yaml")  # its node_params.sitl set a 2 s stream floor
+    plain = sitl_config(sitl_argv(replace(s, time=TimeSpec(mode=TimeMode.LOCKSTEP)), PORTS, params_file=tmp_path / "p"))
+    assert (plain.time.datalink_wall_floor_s, plain.time.stream_wall_floor_s) == (3.0, 2.0)
+    deterministic = replace(s, time=TimeSpec(mode=TimeMode.LOCKSTEP, deterministic=True))
+    cfg = sitl_config(sitl_argv(deterministic, PORTS, params_file=tmp_path / "p.json"))
+    assert cfg.time.mode.value == "lockstep"
+    assert (cfg.time.datalink_wall_floor_s, cfg.time.stream_wall_floor_s) == (0.0, 0.0)
+    assert cfg.time.unix_epoch_s == 0
+    own_epoch = replace(deterministic, node_params={**s.node_params, "sitl": {"time": {"unix_epoch_s": 1.7e9}}})
+    assert sitl_config(sitl_argv(own_epoch, PORTS, params_file=tmp_path / "p.json")).time.unix_epoch_s == 1.7e9

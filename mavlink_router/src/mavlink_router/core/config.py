@@ -39,6 +39,7 @@ __all__ = [
     "DEFAULT_TX_QUEUE_LIMIT",
     "EndpointOptions",
     "GeneralConfig",
+    "LockstepRole",
     "LogMode",
     "RouterConfig",
     "TcpEndpointConfig",
@@ -84,6 +85,16 @@ class LogMode(enum.Enum):
 LOG_LEVELS = ("error", "warning", "info", "debug", "trace")
 
 
+class LockstepRole(enum.Enum):
+    """An endpoint's part in the lockstep (``Lockstep = ...`` in its section; docs/mavlink_router.md)."""
+
+    AUTOPILOT = "autopilot"
+    """Its STEP markers are the router's clock; it gets the router's HELLO on every (re)connect."""
+    CLIENT = "client"
+    """Invited: it gets the router's HELLO every second until it says HELLO itself (a ``udpin:`` client cannot
+    speak first). Any endpoint becomes a lockstep client by saying HELLO; this only invites."""
+
+
 @dataclass(frozen=True)
 class EndpointOptions:
     """Options every endpoint type has (filters, grouping, signing, queue)."""
@@ -97,6 +108,8 @@ class EndpointOptions:
     tx_queue_limit: int = DEFAULT_TX_QUEUE_LIMIT
     #: A lossy radio link in front of this endpoint (None: a perfect link). See core/impairment.py.
     link: ImpairmentConfig | None = None
+    #: Its part in the lockstep (None: none declared; it may still become a client by saying HELLO).
+    lockstep: LockstepRole | None = None
 
 
 @dataclass(frozen=True)
@@ -147,6 +160,8 @@ class GeneralConfig:
     signing_key_file: Path | None = None
     tcp_server_require_signing: bool = False
     tx_queue_limit: int = DEFAULT_TX_QUEUE_LIMIT
+    #: Lockstep with the autopilot's step markers (docs/mavlink_router.md, "Lockstep").
+    lockstep: bool = False
 
 
 @dataclass(frozen=True)
@@ -462,6 +477,7 @@ _COMMON_KEYS = (
     "RequireSigning",
     "SigningKeyFile",
     "TxQueueLimit",
+    "Lockstep",
     *_LINK_KEYS,
 )
 
@@ -519,7 +535,18 @@ def _options(
         signing_key_file=key_file if require_signing else None,
         tx_queue_limit=reader.get("TxQueueLimit", _parse_int(1, 1_000_000), general.tx_queue_limit),
         link=_link(reader),
+        lockstep=_lockstep_role(reader, general),
     )
+
+
+def _lockstep_role(reader: _Reader, general: GeneralConfig) -> LockstepRole | None:
+    if not reader.has("Lockstep"):
+        return None
+    role = LockstepRole(reader.get("Lockstep", _parse_choice(r.value for r in LockstepRole), "autopilot"))
+    if not general.lockstep:
+        msg = f"{reader.where('Lockstep')} Lockstep = {role.value} needs '[General] Lockstep = true'"
+        raise ConfigError(msg)
+    return role
 
 
 _GENERAL_KEYS = (
@@ -540,6 +567,7 @@ _GENERAL_KEYS = (
     "SigningKeyFile",
     "TcpServerRequireSigning",
     "TxQueueLimit",
+    "Lockstep",
 )
 
 
@@ -567,7 +595,15 @@ def _general(section: _Section | None) -> GeneralConfig:
         signing_key_file=r.path("SigningKeyFile"),
         tcp_server_require_signing=r.get("TcpServerRequireSigning", _parse_bool, False),
         tx_queue_limit=r.get("TxQueueLimit", _parse_int(1, 1_000_000), DEFAULT_TX_QUEUE_LIMIT),
+        lockstep=r.get("Lockstep", _parse_bool, False),
     )
+    if general.lockstep and general.dedup_period_ms:
+        msg = (
+            f"{r.where('DeduplicationPeriod')} DeduplicationPeriod = {general.dedup_period_ms} cannot be used with "
+            "Lockstep = true: a wall-clock window would decide the fate of lockstep frames (every frame is "
+            "counted); set DeduplicationPeriod = 0"
+        )
+        raise ConfigError(msg)
     if general.tcp_server_require_signing and general.signing_key_file is None:
         msg = f"{r.where('TcpServerRequireSigning')} TcpServerRequireSigning = true needs SigningKeyFile in [General]"
         raise ConfigError(msg)
@@ -647,7 +683,40 @@ def _build(sections: Mapping[tuple[str, str], _Section]) -> RouterConfig:
             tcp.append(_tcp(section, general))
         elif kind == "uartendpoint":
             uart.append(_uart(section, general))
-    return RouterConfig(general, tuple(udp), tuple(tcp), tuple(uart))
+    config = RouterConfig(general, tuple(udp), tuple(tcp), tuple(uart))
+    _check_lockstep(config, sections)
+    return config
+
+
+def _check_lockstep(config: RouterConfig, sections: Mapping[tuple[str, str], _Section]) -> None:
+    """``[General] Lockstep = true`` needs exactly one ``Lockstep = autopilot`` endpoint, without a lossy link."""
+    if not config.general.lockstep:
+        return
+    endpoints: list[UdpEndpointConfig | TcpEndpointConfig | UartEndpointConfig] = [
+        *config.udp,
+        *config.tcp,
+        *config.uart,
+    ]
+    autopilots = [e for e in endpoints if e.options.lockstep is LockstepRole.AUTOPILOT]
+    general = sections.get(("general", ""))
+    where = f"{general.source}:{general.line}: [General]" if general is not None else "[General]"
+    if not autopilots:
+        msg = (
+            f"{where} Lockstep = true needs one endpoint with 'Lockstep = autopilot' (the autopilot's link, whose "
+            "STEP markers are the router's clock); add it to that endpoint's section"
+        )
+        raise ConfigError(msg)
+    if len(autopilots) > 1:
+        names = ", ".join(e.name for e in autopilots)
+        msg = f"{where} Lockstep = true: only one endpoint may be 'Lockstep = autopilot', got {names}"
+        raise ConfigError(msg)
+    autopilot = autopilots[0]
+    if autopilot.options.link is not None and autopilot.options.link.active:
+        msg = (
+            f"{where} Lockstep = true: the autopilot endpoint {autopilot.name} cannot have a lossy link "
+            "(LossPercent, DelayMs, ...): its frames carry the router's clock; put the link on the client endpoints"
+        )
+        raise ConfigError(msg)
 
 
 def parse_config_text(text: str, *, source: str = "<config>", base_dir: Path | None = None) -> RouterConfig:

@@ -180,12 +180,15 @@ class RouterCore:
         """The lossy inbound link of endpoint ``index`` (None: a perfect one)."""
         return self._eps[index].link_in
 
-    def release_inbound(self, index: int, now_s: float) -> list[Routed]:
-        """Process the frames held by endpoint ``index``'s lossy inbound link that are due at ``now_s``."""
+    def release_inbound(self, index: int, now_s: float, *, link_s: float | None = None) -> list[Routed]:
+        """Process the frames held by endpoint ``index``'s lossy inbound link that are due at ``now_s``.
+
+        ``link_s``: the links' clock when it is not ``now_s`` (the simulation time, in lockstep).
+        """
         ep = self._eps[index]
         if ep.link_in is None:
             return []
-        frames = ep.link_in.due(now_s)
+        frames = ep.link_in.due(now_s if link_s is None else link_s)
         return self._route_frames(index, ep, frames, now_s) if frames else []
 
     def remove_endpoint(self, index: int) -> EndpointStats:
@@ -215,22 +218,52 @@ class RouterCore:
         Returns every frame accepted for routing (for the telemetry log too) with
         the slots it must be written to.
         """
-        ep = self._eps[index]
-        return self._process(index, ep, ep.parser.feed(data), now_s)
+        return self.process(index, self.parse(index, data), now_s)
 
     def flush_idle(self, index: int, now_s: float) -> list[Routed]:
         """Call periodically: if no byte arrived on ``index`` since the last call, flush its parser.
 
         See :meth:`mavlink_router.core.frames.FrameParser.flush` (streams only hold data back).
         """
+        return self.process(index, self.flush_parser(index), now_s)
+
+    def parse(self, index: int, data: bytes) -> list[Frame]:
+        """The frames in bytes received on endpoint ``index`` (framing and CRC only; :meth:`process` routes them).
+
+        The lockstep (``core/lockstep.py``) takes its markers, and its clients' frames, out in between.
+        """
+        ep = self._eps[index]
+        frames = ep.parser.feed(data)
+        self._count_parser(ep)
+        return frames
+
+    def flush_parser(self, index: int) -> list[Frame]:
+        """:meth:`flush_idle` without processing: the frames a stream's parser held back, if it has been idle."""
         ep = self._eps[index]
         parser = ep.parser
         if parser.pending_bytes == 0 or parser.bytes_in != ep.idle_mark:
             ep.idle_mark = parser.bytes_in
             return []
-        return self._process(index, ep, parser.flush(), now_s)
+        frames = parser.flush()
+        self._count_parser(ep)
+        return frames
 
-    def _process(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:
+    def process(self, index: int, frames: list[Frame], now_s: float, *, link_s: float | None = None) -> list[Routed]:
+        """Frames of endpoint ``index`` through its lossy inbound link (at ``link_s``, default ``now_s``), then
+        :meth:`route_frames` for those that are due."""
+        ep = self._eps[index]
+        if ep.link_in is not None and frames:
+            frames = ep.link_in.offer_many(frames, now_s if link_s is None else link_s)
+        if not frames:
+            return []
+        return self._route_frames(index, ep, frames, now_s)
+
+    def route_frames(self, index: int, frames: list[Frame], now_s: float) -> list[Routed]:
+        """Frames of endpoint ``index`` that have crossed its link: filters, signatures, learning, routing."""
+        return self._route_frames(index, self._eps[index], frames, now_s) if frames else []
+
+    @staticmethod
+    def _count_parser(ep: _Endpoint) -> None:
         stats = ep.stats
         parser = ep.parser
         if parser.crc_errors != ep.crc_mark:
@@ -239,11 +272,6 @@ class RouterCore:
         if parser.garbage_bytes != ep.garbage_mark:
             stats.garbage_bytes += parser.garbage_bytes - ep.garbage_mark
             ep.garbage_mark = parser.garbage_bytes
-        if ep.link_in is not None:
-            frames = ep.link_in.offer_many(frames, now_s)
-        if not frames:
-            return []
-        return self._route_frames(index, ep, frames, now_s)
 
     def _route_frames(self, index: int, ep: _Endpoint, frames: list[Frame], now_s: float) -> list[Routed]:  # noqa: PLR0912
         stats = ep.stats

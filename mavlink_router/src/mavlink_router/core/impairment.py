@@ -168,25 +168,27 @@ class LinkImpairment(Generic[T]):
         """The held items whose time has come, in delivery order."""
         queue = self._queue
         out: list[T] = []
-        counters = self.counters
         while queue and queue[0][0] <= now_s:
             _, seq, item = heapq.heappop(queue)
-            if seq < self._released_seq:
-                counters.reordered += 1
-            else:
-                self._released_seq = seq
-            counters.delivered += 1
+            self.delivered(seq)
             out.append(item)
         return out
 
-    def _admit(self, item: T, now_s: float) -> None:
+    def judge(self, now_s: float) -> tuple[int, float] | None:
+        """Decide the fate of one item crossing the link at ``now_s`` without holding it here.
+
+        Returns ``(seq, due_s)``: its place in the offering order and when it is due, or ``None``: lost. Counts
+        it as offered (dropped, delayed); the caller holds it and calls :meth:`delivered` when it delivers it
+        (the router's lockstep holds client frames by step as well as by time, see ``core/lockstep.py``).
+        The same random numbers are drawn as by :meth:`offer`, in the same order.
+        """
         counters = self.counters
         counters.offered += 1
         seq = self._seq
         self._seq += 1
         if self._lost():
             counters.dropped += 1
-            return
+            return None
         hold = self._delay_s
         if self._jitter_s > 0.0:
             hold += self._jitter_s * self._uniform()
@@ -194,7 +196,21 @@ class LinkImpairment(Generic[T]):
             hold += self._reorder_s
         if hold > 0.0:
             counters.delayed += 1
-        heapq.heappush(self._queue, (now_s + hold, seq, item))
+        return seq, now_s + hold
+
+    def delivered(self, seq: int) -> None:
+        """Count the delivery of the item :meth:`judge` numbered ``seq`` (reordered if a later one went first)."""
+        counters = self.counters
+        if seq < self._released_seq:
+            counters.reordered += 1
+        else:
+            self._released_seq = seq
+        counters.delivered += 1
+
+    def _admit(self, item: T, now_s: float) -> None:
+        fate = self.judge(now_s)
+        if fate is not None:
+            heapq.heappush(self._queue, (fate[1], fate[0], item))
 
     def _lost(self) -> bool:
         loss = self._loss

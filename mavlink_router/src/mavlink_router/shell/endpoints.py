@@ -111,6 +111,7 @@ class Host(Protocol):
     def connection_lost(self, endpoint: Endpoint) -> None: ...
     def reset_stream(self, slot: int) -> None: ...
     def mark_dirty(self, endpoint: Endpoint) -> None: ...
+    def endpoint_connected(self, endpoint: Endpoint) -> None: ...
 
 
 def _family(address: str) -> tuple[socket.AddressFamily, str]:
@@ -231,6 +232,8 @@ class UdpEndpoint(Endpoint):
         self.last_error = ""
         self.host.watch(sock, EVENT_READ, self._on_event)
         _LOG.info("opened %s (%s)", self.name, self.describe())
+        if self._peer is not None:  # Normal mode: someone to talk to (a Server waits for its first packet)
+            self.host.endpoint_connected(self)
 
     def _failed(self, err: OSError) -> None:
         self.last_error = str(err)
@@ -252,8 +255,11 @@ class UdpEndpoint(Endpoint):
             except OSError as err:  # e.g. ICMP port unreachable reported on a later call
                 _LOG.debug("%s: recvfrom: %s", self.name, err)
                 continue
+            first = self._peer is None
             self._peer = addr
             received = True
+            if first:
+                self.host.endpoint_connected(self)
             deliver(slot, data)
         if received:
             self._last_rx_mono = self.host.monotonic()
@@ -577,6 +583,7 @@ class TcpClientEndpoint(_SocketStream):
             self.host.reset_stream(self.slot)
         self.host.watch(sock, EVENT_READ, self._on_event)
         _LOG.info("%s: connected to %s:%d", self.name, self.config.address, self.config.port)
+        self.host.endpoint_connected(self)
 
     def _lost(self, reason: str) -> None:
         if not self.connected and not self._connecting:
@@ -782,6 +789,7 @@ class UartEndpoint(StreamEndpoint):
             self.host.reset_stream(self.slot)
         self.host.watch(self._fd, EVENT_READ, self._on_event)
         _LOG.info("%s: opened %s at %d baud", self.name, self.config.device, self.baud)
+        self.host.endpoint_connected(self)
         self._arm_baud_cycle()
 
     def _arm_baud_cycle(self) -> None:

@@ -4,6 +4,9 @@
 read to the core, writes the routed frames, logs them to the ``.tlog``, prints
 and saves statistics, retries endpoints that fail, and on :meth:`Router.request_stop`
 (SIGINT/SIGTERM from the CLI) flushes queues, the log and the stats file.
+With ``[General] Lockstep = true`` every input goes through
+:class:`~mavlink_router.shell.lockstep.LockstepRouting` first, and the lossy links
+run on the autopilot's simulated time (docs/mavlink_router.md, "Lockstep").
 """
 
 from __future__ import annotations
@@ -23,10 +26,11 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from mavlink_router.core.config import LogMode, RouterConfig, as_dict
+from mavlink_router.core.config import LockstepRole, LogMode, RouterConfig, as_dict
 from mavlink_router.core.engine import EndpointStats, Routed, RouterCore, SigningPolicy
 from mavlink_router.core.frames import Frame, MessageSpec
 from mavlink_router.core.impairment import ImpairmentConfig, LinkImpairment
+from mavlink_router.core.lockstep import DUE_TOLERANCE_S
 from mavlink_router.core.routing import Filters
 from mavlink_router.core.signing import STATE_CHANGING_MESSAGES, parse_key_text
 from mavlink_router.errors import ConfigError
@@ -40,6 +44,7 @@ from mavlink_router.shell.endpoints import (
     UdpEndpoint,
     check_serial_available,
 )
+from mavlink_router.shell.lockstep import INVITE_EVERY_S, LockstepRouting
 from mavlink_router.shell.tlog import TelemetryLog
 
 __all__ = ["Router", "format_stats_line", "load_signing_key"]
@@ -81,9 +86,16 @@ def load_signing_key(path: Path) -> bytes:
 
 
 def format_stats_line(
-    name: str, address: str, stats: EndpointStats, now_s: float, link: dict[str, dict[str, int]] | None = None
+    name: str,
+    address: str,
+    stats: EndpointStats,
+    now_s: float,
+    link: dict[str, dict[str, int]] | None = None,
+    *,
+    lockstep: dict[str, int] | None = None,
 ) -> str:
-    """One console line of per-endpoint statistics (``link``: the lossy link's counters per direction)."""
+    """One console line of per-endpoint statistics (``link``: the lossy link's counters per direction;
+    ``lockstep``: the endpoint's lockstep counters)."""
     seen = "never" if stats.last_rx_s is None else f"{max(0.0, now_s - stats.last_rx_s):.1f} s ago"
     drops = stats.tx_drops + stats.unsigned_drops + stats.bad_signature_drops + stats.replay_drops
     line = (
@@ -96,6 +108,8 @@ def format_stats_line(
             f"; link {direction}: lost {c['dropped']}/{c['offered']}, delayed {c['delayed']}, "
             f"reordered {c['reordered']}, held {c['held']}"
         )
+    if lockstep:
+        line += "; lockstep: " + ", ".join(f"{key.replace('_', ' ')} {value}" for key, value in lockstep.items())
     return line
 
 
@@ -158,7 +172,13 @@ class Router:
         self._armed_logging = general.log_mode is LogMode.WHILE_ARMED
         self._arm_seen: object = None
         self._started_s = 0.0
+        self._roles: dict[int, LockstepRole] = {}
+        self._lockstep: LockstepRouting | None = None
         self._build_endpoints()
+        if general.lockstep:
+            (autopilot,) = [slot for slot, role in self._roles.items() if role is LockstepRole.AUTOPILOT]
+            self._lockstep = LockstepRouting(self, autopilot_slot=autopilot, clock=clock)
+            self._lockstep.invited = {slot for slot, role in self._roles.items() if role is LockstepRole.CLIENT}
 
     # -- construction -------------------------------------------------------------------
     def _signing(self, required: bool, key_file: Path | None) -> SigningPolicy | None:
@@ -221,6 +241,8 @@ class Router:
                 self._link_out[slot] = LinkImpairment(link, _uniform(link, endpoint.name, "out").random)
             self._held_links = self._held_links or link.holds
         endpoint.bind_slot(slot, self.core.stats(slot))
+        if options is not None and options.lockstep is not None:
+            self._roles[slot] = options.lockstep
         while len(self._slots) <= slot:
             self._slots.append(None)
         self._slots[slot] = endpoint
@@ -267,25 +289,49 @@ class Router:
         """A dynamic endpoint closed: free its slot, keep its final numbers for the stats file."""
         if not endpoint.dynamic or endpoint.slot < 0 or self._slots[endpoint.slot] is not endpoint:
             return
+        if self._lockstep is not None:
+            self._lockstep.lost(endpoint)
         stats = self.core.remove_endpoint(endpoint.slot)
         self._slots[endpoint.slot] = None
         self.endpoints.remove(endpoint)
         record = {**endpoint.status(), **stats.as_dict(), "closed_at": self._clock()}
         self._closed_stats = [*self._closed_stats, record][-MAX_CLOSED_KEPT:]
 
+    def endpoint_connected(self, endpoint: Endpoint) -> None:
+        """An endpoint (re)connected (the lockstep says HELLO to its autopilot then)."""
+        if self._lockstep is not None:
+            self._lockstep.connected(endpoint)
+
+    def endpoint_at(self, slot: int) -> Endpoint | None:
+        return self._slots[slot] if 0 <= slot < len(self._slots) else None
+
+    def links_of(self, slot: int) -> tuple[LinkImpairment[Frame] | None, LinkImpairment[tuple[bytes, int]] | None]:
+        """Endpoint ``slot``'s lossy links (inbound, outbound)."""
+        return self._link_in.get(slot), self._link_out.get(slot)
+
     def deliver(self, slot: int, data: bytes) -> None:
         """The hot path: route what endpoint ``slot`` read and write it out."""
+        if self._lockstep is not None:
+            self._lockstep.deliver(slot, data)
+            return
         now = self._clock()
         routed = self.core.ingest(slot, data, now)
         if routed:
             self._dispatch(slot, routed, now)
 
-    def _dispatch(self, slot: int, routed: list[Routed], now: float) -> None:
+    def dispatch(self, slot: int, routed: list[Routed], now: float, *, link_s: float | None = None) -> None:
+        """Write routed frames out (``link_s``: the lossy links' clock when it is not ``now``, in lockstep)."""
+        if routed:
+            self._dispatch(slot, routed, now, link_s=link_s)
+
+    def _dispatch(self, slot: int, routed: list[Routed], now: float, *, link_s: float | None = None) -> None:
         if self._armed_logging and self.core.arm_state is not self._arm_seen:
             self._on_arm_change()
         tlog = self.tlog
         slots = self._slots
         link_out = self._link_out
+        lockstep = self._lockstep
+        link_now = now if link_s is None else link_s
         for frame, dests in routed:
             if tlog is not None:
                 tlog.write(frame, now)
@@ -293,29 +339,59 @@ class Router:
                 endpoint = slots[dest]
                 if endpoint is None:
                     continue
+                if lockstep is not None and lockstep.take(slot, dest, frame):
+                    continue
                 link = link_out.get(dest) if link_out else None
                 if link is None:
                     endpoint.send(frame, slot)
                 else:
-                    for held_frame, source in link.offer((frame, slot), now):
+                    for held_frame, source in link.offer((frame, slot), link_now):
                         endpoint.send(held_frame, source)
 
     def _release_held(self) -> None:
-        """Deliver what the lossy links held and is now due, both ways."""
+        """Deliver what the lossy links held and is now due, both ways (wall clock)."""
+        self.release_held(self._clock())
+
+    def release_held(self, link_s: float, *, all_held: bool = False) -> None:
+        """Deliver what the lossy links held and is due by ``link_s`` on their clock (everything: ``all_held``);
+        a registered lockstep client's links are its scheduler's."""
         now = self._clock()
+        due_s = math.inf if all_held else link_s if self._lockstep is None else link_s + DUE_TOLERANCE_S
+        lockstep = self._lockstep
         for slot in list(self._link_in):
-            routed = self.core.release_inbound(slot, now)
+            if lockstep is not None and lockstep.is_client_slot(slot):
+                continue
+            routed = self.core.release_inbound(slot, now, link_s=due_s)
             if routed:
-                self._dispatch(slot, routed, now)
+                self._dispatch(slot, routed, now, link_s=link_s)
         slots = self._slots
         for slot, link in list(self._link_out.items()):
+            if lockstep is not None and lockstep.is_client_slot(slot):
+                continue
             endpoint = slots[slot] if slot < len(slots) else None
-            for frame, source in link.due(now):
+            for frame, source in link.due(due_s):
+                if endpoint is not None:
+                    endpoint.send(frame, source)
+
+    def release_held_of(self, slot: int) -> None:
+        """Everything endpoint ``slot``'s lossy links hold, now (it is becoming a lockstep client)."""
+        now = self._clock()
+        if slot in self._link_in:
+            routed = self.core.release_inbound(slot, now, link_s=math.inf)
+            if routed:
+                self._dispatch(slot, routed, now)
+        link = self._link_out.get(slot)
+        endpoint = self.endpoint_at(slot)
+        if link is not None:
+            for frame, source in link.due(math.inf):
                 if endpoint is not None:
                     endpoint.send(frame, source)
 
     def _next_held_s(self) -> float:
-        """Seconds until the next frame a lossy link holds is due (inf if none)."""
+        """Seconds until the next frame a lossy link holds is due (inf if none; and once the lockstep runs on
+        simulated time, the autopilot's markers release them instead)."""
+        if self._lockstep is not None and self._lockstep.scheduler.synced:
+            return math.inf
         due = min((link.next_due_s for link in self._link_in.values()), default=math.inf)
         due = min(due, min((link.next_due_s for link in self._link_out.values()), default=math.inf))
         return due - self._clock()
@@ -323,10 +399,16 @@ class Router:
     def link_counters(self, slot: int) -> dict[str, dict[str, int]]:
         """The lossy link's counters of endpoint ``slot`` per direction (empty for a perfect link)."""
         out: dict[str, dict[str, int]] = {}
+        lockstep = self._lockstep
         for direction, links in (("in", self._link_in), ("out", self._link_out)):
             link = links.get(slot)
             if link is not None:
-                out[direction] = {**link.counters.as_dict(), "held": link.held}
+                held = link.held
+                if direction == "in" and lockstep is not None:  # a lockstep client's frames wait in its scheduler
+                    endpoint = self.endpoint_at(slot)
+                    counters = None if endpoint is None else lockstep.endpoint_counters(endpoint.name)
+                    held += int(counters.get("held_in", 0)) if counters else 0
+                out[direction] = {**link.counters.as_dict(), "held": held}
         return out
 
     # -- lifecycle ----------------------------------------------------------------------
@@ -347,6 +429,8 @@ class Router:
         if self.tcp_server is not None:
             self.tcp_server.start()
         self._schedule_periodic(TICK_S, self._tick)
+        if self._lockstep is not None and self._lockstep.invited:
+            self._schedule_periodic(INVITE_EVERY_S, self._lockstep.invite)
         self._schedule_periodic(TLOG_FLUSH_S, self._flush_log)
         self._schedule_periodic(self.config.general.stats_interval_s, self._report_stats)
 
@@ -432,6 +516,9 @@ class Router:
         for endpoint in list(self.endpoints):
             endpoint.tick(now)
             if endpoint.stream and endpoint.slot >= 0:
+                if self._lockstep is not None:
+                    self._lockstep.frames(endpoint.slot, self.core.flush_parser(endpoint.slot))
+                    continue
                 wall = self._clock()
                 routed = self.core.flush_idle(endpoint.slot, wall)
                 if routed:
@@ -469,8 +556,11 @@ class Router:
             link = self.link_counters(endpoint.slot)
             if link:
                 entry["link"] = link
+            lockstep = None if self._lockstep is None else self._lockstep.endpoint_counters(endpoint.name)
+            if lockstep is not None:
+                entry["lockstep"] = lockstep
             endpoints.append(entry)
-        return {
+        out: dict[str, object] = {
             "time": now,
             "uptime_s": round(now - self._started_s, 3),
             "msg_to_unknown": self.core.routing.msg_to_unknown,
@@ -483,6 +573,9 @@ class Router:
             "endpoints": endpoints,
             "closed_endpoints": self._closed_stats,
         }
+        if self._lockstep is not None:
+            out["lockstep"] = self._lockstep.snapshot()
+        return out
 
     def _report_stats(self, *, final: bool = False) -> None:
         if self.config.general.report_stats or final:
@@ -497,6 +590,7 @@ class Router:
                         self.core.stats(endpoint.slot),
                         now,
                         self.link_counters(endpoint.slot),
+                        lockstep=None if self._lockstep is None else self._lockstep.endpoint_counters(endpoint.name),
                     ),
                 )
         if self.stats_path is not None:

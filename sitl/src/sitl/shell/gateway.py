@@ -530,8 +530,17 @@ class Gateway:
             ap.mission_current_changed = False
             self.broadcast(self.encoder.mission_current())
 
-    def send_heartbeat(self) -> None:
-        self.broadcast(self.encoder.heartbeat())
+    def send_heartbeat(self, skip: frozenset[Hashable] = frozenset()) -> None:
+        """A heartbeat to every peer of every link but the routes in ``skip`` (lockstep peers: a heartbeat sent
+        on wall time while the simulation is paused must not reach them, docs/lockstep.md)."""
+        msg = self.encoder.heartbeat()
+        if not skip:
+            self.broadcast(msg)
+        else:
+            for link in self.links.values():
+                for route in link.routes():
+                    if route not in skip:
+                        link.send(msg, route)
         self.flush()
 
     def flush(self) -> None:

@@ -34,6 +34,7 @@ __all__ = [
     "TcpServerLink",
     "UdpLink",
     "bind_error",
+    "frame_only",
     "frame_v2",
     "load_signing_key",
     "mavlink",
@@ -191,6 +192,10 @@ class MavLink:
             self.encoder.signing.link_id = link_id & 0xFF
             self.encoder.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
         self._parsers: dict[Hashable, Any] = {}
+        #: Also yield the frames that arrived whole but are not handled (unknown ids, unsigned frames a signed
+        #: link rejects): a lockstep peer counts every frame it sends (sitl.shell.lockstep_links), so these
+        #: count as received. The caller drops them (:func:`frame_only`).
+        self.keep_unknown = False
 
     def pack(self, msg: Any) -> bytes:
         """One MAVLink 2 frame with this link's sequence number (signed if the link signs)."""
@@ -223,6 +228,20 @@ class MavLink:
     def close(self) -> None:
         raise NotImplementedError
 
+    def routes(self) -> list[Hashable]:
+        """The route of every peer the link sends broadcasts to."""
+        return []
+
+    def sent_count(self, route: Hashable) -> int:
+        """Messages sent so far to ``route``'s peer (counted for TCP clients and pinned UDP peers)."""
+        return 0
+
+    def pin(self, route: Hashable) -> None:
+        """Keep ``route``'s peer (a lockstep peer) and count what is sent to it: it is never expired."""
+
+    def unpin(self, route: Hashable) -> None:
+        """Forget :meth:`pin`."""
+
     def forget_peer(self, peer: Hashable) -> None:
         self._parsers.pop(peer, None)
 
@@ -246,14 +265,24 @@ class MavLink:
                 reason = str(getattr(msg, "reason", "bad data"))
                 if "signature" in reason:
                     stats.rx_rejected_unsigned += 1
+                    if self.keep_unknown:
+                        yield msg
                 else:
                     stats.bad(reason)
                 continue
             if msg_type.startswith("UNKNOWN_"):
                 stats.rx_unknown_ids += 1
+                if self.keep_unknown:
+                    yield msg
                 continue
             stats.rx_messages += 1
             yield msg
+
+
+def frame_only(msg: Any) -> bool:
+    """A frame :meth:`MavLink.parse` yields only with ``keep_unknown``: counted, never handled."""
+    kind: str = msg.get_type()
+    return kind == "BAD_DATA" or kind.startswith("UNKNOWN_")
 
 
 def bind_error(what: str, host: str, port: int, err: OSError) -> LinkError:
@@ -299,9 +328,27 @@ class UdpLink(MavLink):
         self._clock = clock
         self._batch = bytearray()
         self._batch_count = 0
+        #: Pinned peers (lockstep peers): never expired; messages sent to each, counted.
+        self._pinned: dict[tuple[str, int], int] = {}
 
     def fileno(self) -> int:
         return self.sock.fileno()
+
+    def routes(self) -> list[Hashable]:
+        return [(self.name, dest) for dest in self.destinations()]
+
+    def pin(self, route: Hashable) -> None:
+        if isinstance(route, tuple) and route[0] == self.name:
+            self._pinned.setdefault(route[1], 0)
+
+    def unpin(self, route: Hashable) -> None:
+        if isinstance(route, tuple) and route[0] == self.name:
+            self._pinned.pop(route[1], None)
+
+    def sent_count(self, route: Hashable) -> int:
+        if isinstance(route, tuple) and route[0] == self.name:
+            return self._pinned.get(route[1], 0)
+        return 0
 
     def read(self) -> list[Received]:
         out: list[Received] = []
@@ -323,17 +370,19 @@ class UdpLink(MavLink):
 
     def _expire(self, now: float, *, force: bool = False) -> None:
         for peer, last in list(self._peers.items()):
-            if now - last > self.PEER_TIMEOUT_S:
+            if now - last > self.PEER_TIMEOUT_S and peer not in self._pinned:
                 del self._peers[peer]
                 self.forget_peer((self.name, peer))
         if force and len(self._peers) >= MAX_PEERS:
-            oldest = min(self._peers, key=self._peers.__getitem__)
+            unpinned = [p for p in self._peers if p not in self._pinned] or list(self._peers)
+            oldest = min(unpinned, key=self._peers.__getitem__)
             del self._peers[oldest]
 
     def destinations(self) -> list[tuple[str, int]]:
         self._expire(self._clock())
         dests = [self.remote]
         dests.extend(p for p in self._peers if p != self.remote)
+        dests.extend(p for p in self._pinned if p != self.remote and p not in self._peers)
         return dests
 
     def send(self, msg: Any, route: Hashable | None = None) -> None:
@@ -368,6 +417,9 @@ class UdpLink(MavLink):
             self._sendto(data, dest, count)
 
     def _sendto(self, data: bytes, dest: tuple[str, int], count: int) -> None:
+        pinned = self._pinned
+        if dest in pinned:  # counted whether or not the kernel takes it: a lost datagram is a lost message
+            pinned[dest] += count
         try:
             self.sock.sendto(data, dest)
             self.stats.tx_messages += count
@@ -381,12 +433,13 @@ class UdpLink(MavLink):
 
 
 class _TcpClient:
-    __slots__ = ("addr", "out", "sock")
+    __slots__ = ("addr", "out", "sent", "sock")
 
     def __init__(self, sock: socket.socket, addr: tuple[str, int]) -> None:
         self.sock = sock
         self.addr = addr
         self.out = bytearray()
+        self.sent = 0  # messages queued for this client (sent_count)
 
 
 class TcpServerLink(MavLink):
@@ -422,9 +475,20 @@ class TcpServerLink(MavLink):
         self.clients: dict[int, _TcpClient] = {}
         self._next_id = 0
         self.on_drop: Callable[[socket.socket], None] | None = None
+        #: Called with the route of a client that is gone (after ``on_drop``).
+        self.on_forget: Callable[[Hashable], None] | None = None
 
     def fileno(self) -> int:
         return self.server.fileno()
+
+    def routes(self) -> list[Hashable]:
+        return [(self.name, cid) for cid in self.clients]
+
+    def sent_count(self, route: Hashable) -> int:
+        if isinstance(route, tuple) and route[0] == self.name:
+            client = self.clients.get(route[1])
+            return 0 if client is None else client.sent
+        return 0
 
     def accept(self) -> _TcpClient | None:
         try:
@@ -472,6 +536,8 @@ class TcpServerLink(MavLink):
             with contextlib.suppress(OSError):
                 client.sock.close()
             self.forget_peer((self.name, cid))
+            if self.on_forget is not None:
+                self.on_forget((self.name, cid))
 
     def send(self, msg: Any, route: Hashable | None = None) -> None:
         if not self.clients:
@@ -488,6 +554,7 @@ class TcpServerLink(MavLink):
             if client is None:
                 continue
             client.out += buf
+            client.sent += 1
             self.stats.tx_messages += 1
             self.stats.tx_bytes += len(buf)
             if route is not None or len(client.out) >= self.BATCH_BYTES:

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sitl.core.protocol import SIM_STEP, MavResult
+from sitl.core.protocol import SIM_STEP, MavResult, MavSeverity
 from sitl.shell.encode import Encoder, sim_time_us
 from sitl.shell.links import LinkStats, MavLink, bind_error
 from sitl.vehicle import Vehicle
@@ -28,12 +28,13 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Grant:
-    """A lockstep SIM_STEP request waiting to be executed."""
+    """A lockstep SIM_STEP request waiting to be executed; ``number``: the step it grants (1, 2, ...)."""
 
     steps: int
     addr: tuple[str, int]
     system_id: int
     component_id: int
+    number: int = 0
 
 
 class SimLink:
@@ -84,6 +85,8 @@ class SimLink:
         self._next_heartbeat_s = 0.0
         self._last_status = -1
         self.grants: list[Grant] = []
+        #: SIM_STEP grants accepted so far: the next one is number ``granted + 1`` (its ``param2``, when given).
+        self.granted = 0
         self.collisions = 0
         self.terrain_reports = 0
         self.terrain_clamped = 0
@@ -141,7 +144,19 @@ class SimLink:
                     stats.rx_invalid_values += 1
                 self._ack(peer, msg, MavResult.DENIED)
                 return
-            self.grants.append(Grant(int(steps), peer, msg.get_srcSystem(), msg.get_srcComponent()))
+            number = msg.param2
+            expected = self.granted + 1
+            if number not in (0, expected):
+                # param2 = the step this grant is (0: unnumbered, an older master): a lost or repeated grant
+                stats.rx_invalid_values += 1
+                text = f"SIM_STEP numbered {number:g} refused: the next grant is step {expected}"
+                log.error("%s (from %s:%d)", text, *peer)
+                for chunk in self.encoder.statustexts(int(MavSeverity.ERROR), text):
+                    self._send(chunk, [peer])
+                self._ack(peer, msg, MavResult.DENIED)
+                return
+            self.granted = expected
+            self.grants.append(Grant(int(steps), peer, msg.get_srcSystem(), msg.get_srcComponent(), expected))
 
     def _ack(self, peer: tuple[str, int], msg: Any, result: MavResult) -> None:
         ack = self.encoder.factory.command_ack_encode(

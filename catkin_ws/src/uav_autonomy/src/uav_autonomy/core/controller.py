@@ -28,7 +28,13 @@ States and transitions (see docs/autonomy.md for the full table):
   heartbeat confirms it; back to IDLE once landed and disarmed.
 * Yielding: if the heartbeat shows another mode while the controller owns the
   vehicle (a failsafe, or a pilot), it stops sending setpoints at once and
-  reports it: state RTL or LAND if that is the new mode, IDLE otherwise. If the
+  reports it: state RTL or LAND if that is the new mode, IDLE otherwise. A disarm
+  while under control must be confirmed (:meth:`WaypointController._disarm_confirmed`:
+  two in-order heartbeats saying disarmed, or one followed by EXTENDED_SYS_STATE
+  saying landed); until then the controller carries on and asks for nothing new
+  (no arm request), so one stale or reordered frame over a lossy link never ends
+  a flight. The shell orders the autopilot's frames (:class:`TelemetryOrder`) and
+  ignores the older ones. If the
   link drops (no heartbeat for ``link_timeout_s``) or position telemetry goes
   stale, it stops sending setpoints and goes to IDLE; after the link returns it
   sends nothing until it is asked again, so no stale setpoint is ever sent.
@@ -54,7 +60,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -75,6 +81,7 @@ __all__ = [
     "RequestTakeoff",
     "SendSetpoint",
     "Telemetry",
+    "TelemetryOrder",
     "WaypointController",
 ]
 
@@ -194,6 +201,10 @@ class Telemetry:
         position_wall_s: the same arrival on the wall clock (None: the shell has no wall clock).
         yaw_enu_rad: last ATTITUDE yaw in ENU (None: never).
         position_invalid: why the last LOCAL_POSITION_NED could not be used ("" if it could): NaN/inf.
+        disarmed_heartbeats: how many in-order heartbeats in a row have said disarmed (0: the last said armed);
+            None when the shell does not count them (then one is taken as confirmed).
+        landed_since_disarmed: an EXTENDED_SYS_STATE saying MAV_LANDED_STATE_ON_GROUND came after the first of
+            those disarmed heartbeats.
     """
 
     heartbeat_s: float | None = None
@@ -207,6 +218,8 @@ class Telemetry:
     heartbeat_wall_s: float | None = None
     position_wall_s: float | None = None
     position_invalid: str = ""
+    disarmed_heartbeats: int | None = None
+    landed_since_disarmed: bool = False
 
     @property
     def mode(self) -> FlightMode | None:
@@ -216,6 +229,70 @@ class Telemetry:
     @property
     def mode_name(self) -> str:
         return "" if self.heartbeat_s is None else mode_name(self.autopilot, self.custom_mode)
+
+
+class TelemetryOrder:
+    """Which of one autopilot's frames carry newer information than what the shell already holds (pure).
+
+    Over a lossy, reordering link a frame can arrive after a newer one (jitter, a reordering radio) or twice.
+    Frames with a ``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE...) are ordered by it: one not newer than
+    the last of its kind is stale, unless it is more than ``reboot_back_ms`` older (the autopilot restarted).
+    The others (HEARTBEAT, EXTENDED_SYS_STATE...) are ordered by the MAVLink sequence number of the sender's
+    link, which wraps at 256: every frame is placed in the sender's stream relative to the newest seen (up to
+    128 ahead or 127 behind), and a frame placed no later than the last of its kind is stale. The stream is
+    taken afresh (the next frame is the newest) after ``resync_after_s`` of the caller's time without a newer
+    frame, or after ``resync_after_behind`` frames in a row that look old (a restarted link, or a fade of more
+    than 128 frames).
+    """
+
+    def __init__(
+        self, *, resync_after_s: float = 1.0, resync_after_behind: int = 32, reboot_back_ms: int = 3000
+    ) -> None:
+        self.resync_after_s = resync_after_s
+        self.resync_after_behind = resync_after_behind
+        self.reboot_back_ms = reboot_back_ms
+        self._head: int | None = None  # the newest frame's place in the stream (unwrapped sequence number)
+        self._head_s = 0.0
+        self._behind = 0
+        self._last: dict[str, int] = {}
+        self._last_ms: dict[str, int] = {}
+        #: Frames found stale (older than, or the same as, the last of their kind).
+        self.stale = 0
+
+    def newer(self, kind: str, seq: int, now_s: float, time_boot_ms: int | None = None) -> bool:
+        """Does this frame (``kind``, sequence number ``seq``, received at ``now_s``) bring newer information?"""
+        place = self._place(seq & 0xFF, now_s)
+        if time_boot_ms is not None:
+            last_ms = self._last_ms.get(kind)
+            if last_ms is not None and time_boot_ms <= last_ms and last_ms - time_boot_ms <= self.reboot_back_ms:
+                self.stale += 1
+                return False
+            self._last_ms[kind] = time_boot_ms
+            return True
+        last = self._last.get(kind)
+        if last is not None and place <= last:
+            self.stale += 1
+            return False
+        self._last[kind] = place
+        return True
+
+    def _place(self, seq: int, now_s: float) -> int:
+        head = self._head
+        if head is None:
+            self._head, self._head_s = seq, now_s
+            return seq
+        ahead = (seq - head) % 256
+        if now_s - self._head_s > self.resync_after_s or self._behind >= self.resync_after_behind:
+            place = head + (ahead or 256)  # taken afresh: the newest
+        elif ahead == 0:
+            return head  # the newest frame again (a duplicate)
+        elif ahead <= 128:
+            place = head + ahead
+        else:
+            self._behind += 1
+            return head - (256 - ahead)
+        self._head, self._head_s, self._behind = place, now_s, 0
+        return place
 
 
 @dataclass(frozen=True)
@@ -296,6 +373,8 @@ class _Engagement:
     last_takeoff_request_s: float | None = None
     #: The autopilot's mode when OFFBOARD was first requested (a later RTL/LAND is a failsafe's, not ours).
     mode_at_request: FlightMode | None = None
+    #: A heartbeat said disarmed and the event was logged (until it is confirmed, or armed again).
+    disarm_noted: bool = False
 
 
 @dataclass
@@ -624,9 +703,10 @@ class WaypointController:
         if eng.offboard_confirmed and mode is not FlightMode.OFFBOARD:
             self._yield_to(mode, "autopilot left OFFBOARD (failsafe or pilot)")
             return []
-        if eng.armed_seen and not t.armed:
-            self._go_idle("vehicle disarmed while under control")
+        checked = self._check_disarm(t, eng)
+        if checked is None:
             return []
+        t = checked
         if t.armed and eng.offboard_confirmed:
             eng.armed_seen = True
         actions: list[Action] = []
@@ -647,6 +727,29 @@ class WaypointController:
         if eng.offboard_confirmed and self._state is ControllerState.TAKEOFF:
             actions.extend(self._arm_and_takeoff(now_s, t, eng))
         return [] if self._state not in OFFBOARD_STATES else actions
+
+    def _check_disarm(self, t: Telemetry, eng: _Engagement) -> Telemetry | None:
+        """None after a confirmed disarm while under control (the state is then IDLE); else the telemetry to act
+        on: a disarm not yet confirmed is taken as still armed, so nothing new (an arm request) is asked for on
+        its word."""
+        if not (eng.armed_seen and not t.armed):
+            eng.disarm_noted = False
+            return t
+        if self._disarm_confirmed(t):
+            self._go_idle("vehicle disarmed while under control")
+            return None
+        if not eng.disarm_noted:
+            eng.disarm_noted = True
+            self._event("a heartbeat says disarmed: carrying on until the next one confirms it")
+        return replace(t, armed=True)
+
+    @staticmethod
+    def _disarm_confirmed(t: Telemetry) -> bool:
+        """A disarm while under control counts once two in-order heartbeats say so, or one and then
+        EXTENDED_SYS_STATE saying landed (one stale or reordered frame must not end a flight); a shell that does
+        not count heartbeats (``disarmed_heartbeats`` None) is taken at its word."""
+        n = t.disarmed_heartbeats
+        return n is None or n >= 2 or (n >= 1 and t.landed_since_disarmed)
 
     def _offboard_handshake(self, now_s: float, t: Telemetry, eng: _Engagement) -> list[Action] | None:
         """Confirm OFFBOARD from the heartbeat, or request it once the pre-stream is long enough.

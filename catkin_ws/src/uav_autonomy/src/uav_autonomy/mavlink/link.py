@@ -13,6 +13,24 @@ a process starved of CPU.
 Reconnection: without a heartbeat for ``reconnect_after_s`` (and, with a wall clock,
 ``wall_floor_s`` wall seconds as well) the socket is closed and opened again (a UDP
 server forgets stale peers, a TCP client redials).
+
+Reading is bounded: one :meth:`MavlinkLink.poll` handles at most ``poll_max_messages``
+messages and reads for at most ``poll_max_wall_s`` wall seconds; what is left waits for the
+next poll (a flood on the link cannot hold the caller's loop).
+
+Newest information only: over a lossy, reordering link a frame can arrive after a newer one or
+twice; the autopilot's frames are ordered (:class:`~uav_autonomy.core.controller.TelemetryOrder`:
+``time_boot_ms`` where the message has one, else the MAVLink sequence number) and an older frame
+changes nothing. Heartbeats saying disarmed are counted, in order, for the controller's
+confirmation rule.
+
+Lockstep (docs/lockstep.md, "Clients"): :meth:`MavlinkLink.start_lockstep` says HELLO through the
+router; then, in every step, :meth:`MavlinkLink.read_step` handles exactly the messages the router
+sent before its STEP marker (stamped with the step's simulated time on both clocks) and
+:meth:`MavlinkLink.end_step` ends the step with this client's marker. :meth:`MavlinkLink.poll` is
+refused then (it would take messages of later steps) and the link never reconnects on silence. A
+marker that breaks the protocol raises :class:`uav_common.lockstep.markers.MarkerError`, a marker
+that never comes :class:`uav_common.errors.WaitTimeoutError` after the watchdog (both exit status 1).
 """
 
 from __future__ import annotations
@@ -31,14 +49,23 @@ from uav_autonomy.core.controller import (
     RequestTakeoff,
     SendSetpoint,
     Telemetry,
+    TelemetryOrder,
 )
 from uav_autonomy.core.pose_estimate import AssumedAccuracy, estimate_from_local_position
 from uav_autonomy.errors import InvalidInputError, MavlinkLinkError
 from uav_common.autopilot_modes import Autopilot, FlightMode, set_mode_params
 from uav_common.frames import enu_to_ned, ned_to_enu, yaw_enu_to_ned, yaw_ned_to_enu
 from uav_common.rotations import quat_from_euler
+from uav_common.shell.mavlink_lockstep import LockstepClient
 
-__all__ = ["POSITION_YAW_TYPE_MASK", "BatteryReading", "MavlinkLink", "OdometryReading"]
+__all__ = [
+    "POLL_MAX_MESSAGES",
+    "POLL_MAX_WALL_S",
+    "POSITION_YAW_TYPE_MASK",
+    "BatteryReading",
+    "MavlinkLink",
+    "OdometryReading",
+]
 
 POSITION_YAW_TYPE_MASK = 2552
 """Ignore velocity, acceleration and yaw rate: position + yaw (MAVROS/MAVSDK use the same)."""
@@ -53,7 +80,12 @@ _MAV_CMD_NAV_TAKEOFF = 22
 _MAV_CMD_SET_MESSAGE_INTERVAL = 511
 _MAV_MODE_FLAG_SAFETY_ARMED = 128
 _LANDED_IN_AIR = (2, 3, 4)  # MAV_LANDED_STATE: IN_AIR, TAKEOFF, LANDING
+_LANDED_ON_GROUND = 1
 _EXT_STATE_FRESH_S = 3.0
+#: One poll handles at most this many messages ...
+POLL_MAX_MESSAGES = 1000
+#: ... and reads for at most this many wall seconds; the rest waits for the next poll.
+POLL_MAX_WALL_S = 0.05
 
 
 @dataclass
@@ -111,6 +143,9 @@ class _State:
     landed_state_s: float | None = None
     battery: BatteryReading = field(default_factory=BatteryReading)
     status_texts: list[str] = field(default_factory=list)
+    order: TelemetryOrder = field(default_factory=TelemetryOrder)
+    disarmed_streak: int = 0  # in-order heartbeats in a row saying disarmed
+    landed_since_disarmed: bool = False
 
 
 class MavlinkLink:
@@ -127,9 +162,14 @@ class MavlinkLink:
         reconnect_after_s: float,
         wall_floor_s: float = 0.0,
         on_message: Callable[[object, float, float | None], None] | None = None,
+        poll_max_messages: int = POLL_MAX_MESSAGES,
+        poll_max_wall_s: float = POLL_MAX_WALL_S,
+        wall_clock: Callable[[], float] = time.monotonic,
     ) -> None:
         """``on_message(msg, now_s, now_wall_s)``: also called for every message from the target (after this
-        link has taken what it needs), e.g. the estimate messages of the autopilot odometry node."""
+        link has taken what it needs, stale ones included), e.g. the estimate messages of the autopilot odometry
+        node. ``poll_max_messages``, ``poll_max_wall_s``: the bound of one :meth:`poll` (``wall_clock`` measures
+        it)."""
         self.url = url
         self.on_message = on_message
         self.source_system = source_system
@@ -144,6 +184,13 @@ class MavlinkLink:
         self._opened_wall_s: float | None = None
         self._last_heartbeat_out_s: float | None = None
         self.reconnects = 0
+        self.poll_max_messages = poll_max_messages
+        self.poll_max_wall_s = poll_max_wall_s
+        self._wall_clock = wall_clock
+        self._lockstep: LockstepClient | None = None
+        self._watchdog_s = 120.0
+        #: Messages handled by the last :meth:`read_step`.
+        self.step_messages = 0
 
     # ------------------------------------------------------------ lifecycle
     def open(self, now_s: float, now_wall_s: float | None = None) -> None:
@@ -175,6 +222,7 @@ class MavlinkLink:
     def close(self) -> None:
         conn = self._conn
         self._conn = None
+        self._lockstep = None
         if conn is not None:
             conn.close()  # type: ignore[attr-defined]
 
@@ -196,15 +244,29 @@ class MavlinkLink:
         now_wall_s: float | None = None,
         *,
         clock: Callable[[], tuple[float, float | None]] | None = None,
-    ) -> None:
-        """Read every pending message; reopen the socket after ``reconnect_after_s`` of silence (see module doc).
+    ) -> int:
+        """Read what is pending, within the bound (module doc); reopen the socket after ``reconnect_after_s`` of
+        silence (see module doc). Returns the number of messages handled.
 
         Messages are stamped ``now_s``/``now_wall_s``, or, with ``clock`` (returning both), with its reading when
         each is taken: on a loaded machine a poll can last long enough for a simulation running faster than real
         time to move on by seconds (a lockstep run once went from 33.2 to 37.8 s during one), and a message
-        read at its end did not arrive at its start."""
+        read at its end did not arrive at its start.
+
+        Raises:
+            MavlinkLinkError: the link is in lockstep (read with :meth:`read_step`).
+        """
+        if self._lockstep is not None:
+            text = f"MAVLink connection '{self.url}' is in lockstep: read it with read_step(), not poll()"
+            raise MavlinkLinkError(text)
         conn = self._require()
+        handled = 0
+        started = self._wall_clock()
+        cut_short = False
         while True:
+            if handled >= self.poll_max_messages or self._wall_clock() - started >= self.poll_max_wall_s:
+                cut_short = True  # the rest waits for the next poll
+                break
             try:
                 msg = conn.recv_match(blocking=False)  # type: ignore[attr-defined]
             except (OSError, ConnectionError):
@@ -214,15 +276,66 @@ class MavlinkLink:
             if clock is not None:
                 now_s, now_wall_s = clock()
             self._handle(msg, now_s, now_wall_s)
+            handled += 1
         st = self._st
         last = st.heartbeat_s if st.heartbeat_s is not None else self._opened_s
         last_wall = st.heartbeat_wall_s if st.heartbeat_s is not None else self._opened_wall_s
         silent_wall = now_wall_s is None or last_wall is None or now_wall_s - last_wall >= self.wall_floor_s
-        if now_s - last > self.reconnect_after_s and silent_wall:
+        if not cut_short and now_s - last > self.reconnect_after_s and silent_wall:
             self.close()
             self.open(now_s, now_wall_s)
             self.reconnects += 1
             st.heartbeat_s = st.heartbeat_wall_s = None
+        return handled
+
+    # ------------------------------------------------------------ lockstep
+    @property
+    def lockstep(self) -> bool:
+        """Is the link in lockstep (after :meth:`start_lockstep`)?"""
+        return self._lockstep is not None
+
+    def start_lockstep(self, lookahead_steps: int, watchdog_s: float = 120.0) -> int:
+        """Say HELLO(``lookahead_steps``) to the router (or the SITL); returns the step it registered this client at.
+
+        Raises:
+            MavlinkLinkError: the link is not open.
+            MarkerError: a malformed marker, or HELLO said twice.
+            WaitTimeoutError: no answer within ``watchdog_s`` wall seconds.
+        """
+        client = LockstepClient(
+            self._require(),
+            name=f"MAVLink link {self.url}",
+            target_system=self.target_system,
+            target_component=self.target_component,
+        )
+        self._watchdog_s = watchdog_s
+        step = client.hello(lookahead_steps, watchdog_s=watchdog_s)
+        self._lockstep = client
+        return step
+
+    def read_step(self, step: int, t_sim_s: float) -> None:
+        """Handle every message of ``step`` (those before the router's STEP(``step``)), stamped ``t_sim_s`` on both
+        clocks (:attr:`step_messages`: how many there were).
+
+        Raises:
+            MavlinkLinkError: not in lockstep.
+            MarkerError: the step's count does not balance, or its marker is not the next one.
+            WaitTimeoutError: no marker within the watchdog.
+        """
+        messages = self._require_lockstep().read_step(step, watchdog_s=self._watchdog_s)
+        for msg in messages:
+            self._handle(msg, t_sim_s, t_sim_s)
+        self.step_messages = len(messages)
+
+    def end_step(self, step: int, t_sim_s: float) -> None:
+        """End ``step`` (after sending what it had to send): STEP(``step``, ``t_sim_s``, messages sent)."""
+        self._require_lockstep().end_step(step, t_sim_s)
+
+    def _require_lockstep(self) -> LockstepClient:
+        if self._lockstep is None:
+            msg = f"MAVLink connection '{self.url}' is not in lockstep: call start_lockstep() first"
+            raise MavlinkLinkError(msg)
+        return self._lockstep
 
     def _handle(self, msg: object, now_s: float, now_wall_s: float | None = None) -> None:
         mtype = msg.get_type()  # type: ignore[attr-defined]
@@ -236,14 +349,14 @@ class MavlinkLink:
 
     def _take(self, msg: object, mtype: str, now_s: float, now_wall_s: float | None) -> None:
         st = self._st
+        if mtype == "STATUSTEXT":  # a text is an event, whenever it comes
+            st.status_texts.append(str(msg.text))  # type: ignore[attr-defined]
+            return
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if not st.order.newer(mtype, int(msg.get_seq()), now_s, None if boot_ms is None else int(boot_ms)):  # type: ignore[attr-defined]
+            return  # older than what we hold (reordered, or a duplicate): it changes nothing
         if mtype == "HEARTBEAT":
-            if msg.type == _MAV_TYPE_GCS or msg.autopilot == _MAV_AUTOPILOT_INVALID:  # type: ignore[attr-defined]
-                return
-            st.heartbeat_s = now_s
-            st.heartbeat_wall_s = now_wall_s
-            st.custom_mode = int(msg.custom_mode)  # type: ignore[attr-defined]
-            st.base_mode = int(msg.base_mode)  # type: ignore[attr-defined]
-            st.autopilot = Autopilot.from_heartbeat(int(msg.autopilot))  # type: ignore[attr-defined]
+            self._take_heartbeat(msg, now_s, now_wall_s)
         elif mtype == "LOCAL_POSITION_NED":
             position = (float(msg.x), float(msg.y), float(msg.z))  # type: ignore[attr-defined]
             if not all(math.isfinite(v) for v in position):
@@ -268,7 +381,30 @@ class MavlinkLink:
         elif mtype == "EXTENDED_SYS_STATE":
             st.landed_state = int(msg.landed_state)  # type: ignore[attr-defined]
             st.landed_state_s = now_s
-        elif mtype == "BATTERY_STATUS":
+            if st.disarmed_streak and st.landed_state == _LANDED_ON_GROUND:
+                st.landed_since_disarmed = True
+        elif mtype in ("BATTERY_STATUS", "SYS_STATUS"):
+            self._take_battery(msg, mtype, now_s)
+
+    def _take_heartbeat(self, msg: object, now_s: float, now_wall_s: float | None) -> None:
+        if msg.type == _MAV_TYPE_GCS or msg.autopilot == _MAV_AUTOPILOT_INVALID:  # type: ignore[attr-defined]
+            return
+        st = self._st
+        st.heartbeat_s = now_s
+        st.heartbeat_wall_s = now_wall_s
+        st.custom_mode = int(msg.custom_mode)  # type: ignore[attr-defined]
+        st.base_mode = int(msg.base_mode)  # type: ignore[attr-defined]
+        st.autopilot = Autopilot.from_heartbeat(int(msg.autopilot))  # type: ignore[attr-defined]
+        if st.base_mode & _MAV_MODE_FLAG_SAFETY_ARMED:
+            st.disarmed_streak = 0
+        else:
+            st.disarmed_streak += 1
+            if st.disarmed_streak == 1:
+                st.landed_since_disarmed = False
+
+    def _take_battery(self, msg: object, mtype: str, now_s: float) -> None:
+        st = self._st
+        if mtype == "BATTERY_STATUS":
             b = st.battery
             cells = [v for v in msg.voltages if v not in (0xFFFF, 0xFFFE)]  # type: ignore[attr-defined]
             if cells:
@@ -282,8 +418,6 @@ class MavlinkLink:
             b.voltage_v = msg.voltage_battery / 1000.0 if msg.voltage_battery != 0xFFFF else math.nan  # type: ignore[attr-defined]
             b.current_a = msg.current_battery / 100.0 if msg.current_battery >= 0 else math.nan  # type: ignore[attr-defined]
             b.remaining_frac = msg.battery_remaining / 100.0 if msg.battery_remaining >= 0 else math.nan  # type: ignore[attr-defined]
-        elif mtype == "STATUSTEXT":
-            st.status_texts.append(str(msg.text))  # type: ignore[attr-defined]
 
     def telemetry(self) -> Telemetry:
         st = self._st
@@ -308,6 +442,8 @@ class MavlinkLink:
             heartbeat_wall_s=st.heartbeat_wall_s,
             position_wall_s=st.position_wall_s,
             position_invalid=st.position_invalid,
+            disarmed_heartbeats=st.disarmed_streak,
+            landed_since_disarmed=st.landed_since_disarmed,
         )
 
     def battery(self) -> BatteryReading:

@@ -98,7 +98,11 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
     * lockstep, or the scenario's speed factor;
     * the scenario's ``wind`` as the SITL's ``wind.*`` settings;
     * ``node_params.sitl`` as ``--set`` overrides (any ``config/sitl.yaml`` key, e.g.
-      ``failsafe.geofence_max_altitude_m``).
+      ``failsafe.geofence_max_altitude_m``);
+    * ``time.deterministic``: no wall-clock floor on the SITL's link and stream failsafes
+      (``time.datalink_wall_floor_s`` and ``time.stream_wall_floor_s`` 0, after ``node_params``: a floor would
+      make the run depend on the machine's speed; docs/lockstep.md). ``time.unix_epoch_s`` is 0 in every run
+      unless ``node_params.sitl`` sets it.
     """
     argv = [
         "uav-sitl",
@@ -135,6 +139,8 @@ def sitl_argv(scenario: Scenario, ports: RunPorts, *, params_file: Path, router:
             argv += ["--set", f"wind.{key}={yaml_scalar(value)}"]
     for key, value in flatten_settings(scenario.node_params.get("sitl", {})):
         argv += ["--set", f"{key}={yaml_scalar(value)}"]
+    if scenario.time.deterministic:
+        argv += ["--set", "time.datalink_wall_floor_s=0", "--set", "time.stream_wall_floor_s=0"]
     return argv
 
 
@@ -165,10 +171,17 @@ def router_conf(ports: RunPorts, log_dir: Path | None, scenario: Scenario | None
     controller and MAVSDK as UDP clients, an ad-hoc UDP server and a TCP server; with
     ``pose_source: autopilot`` also the autopilot odometry node's. The scenario's ``link``
     section makes the endpoints it names lossy.
+
+    ``time.mode: lockstep``: the router runs in lockstep with the SITL (``Lockstep = true``, the SITL's
+    endpoint ``Lockstep = autopilot``): its lossy links count in simulated time. ``time.deterministic``: the
+    controller's and the odometry node's endpoints are also ``Lockstep = client`` (the router invites them: a
+    ``udpin:`` client cannot say HELLO before it has heard from the router). docs/mavlink_router.md, "Lockstep".
     """
     links = scenario.link.endpoints if scenario is not None else {}
     seed = scenario.link.seed if scenario is not None else 0
     odometry = scenario is not None and scenario.pose_source is PoseSource.AUTOPILOT
+    lockstep = scenario is not None and scenario.time.mode is TimeMode.LOCKSTEP
+    clients = {"controller", "odometry"} if scenario is not None and scenario.time.deterministic else set()
     lines = [
         "# Written by the scenario launcher for one run (see config/router.conf for the defaults).",
         "[General]",
@@ -178,6 +191,8 @@ def router_conf(ports: RunPorts, log_dir: Path | None, scenario: Scenario | None
         "MavlinkDialect = auto",
         "DebugLogLevel = info",
     ]
+    if lockstep:
+        lines.append("Lockstep = true")
     if log_dir is not None:
         lines += [f"Log = {log_dir}", "LogMode = always", "LogTelemetry = true"]
     lines += [
@@ -187,11 +202,15 @@ def router_conf(ports: RunPorts, log_dir: Path | None, scenario: Scenario | None
         f"Port = {ports.sitl_tcp}",
         "RetryTimeout = 2",
     ]
-    clients = [("gcs", ports.gcs), ("controller", ports.controller), ("mavsdk", ports.mavsdk)]
+    if lockstep:
+        lines.append("Lockstep = autopilot")
+    endpoints = [("gcs", ports.gcs), ("controller", ports.controller), ("mavsdk", ports.mavsdk)]
     if odometry:
-        clients.append(("odometry", ports.odometry))
-    for name, port in clients:
+        endpoints.append(("odometry", ports.odometry))
+    for name, port in endpoints:
         lines += ["", f"[UdpEndpoint {name}]", "Mode = Normal", "Address = 127.0.0.1", f"Port = {port}"]
+        if name in clients:
+            lines.append("Lockstep = client")
         if name == "odometry":
             lines.append("AllowMsgIdOut = " + ",".join(str(m) for m in ODOMETRY_MESSAGES))
         if name in links:
