@@ -240,7 +240,9 @@ class MapServerLockstepCheck(unittest.TestCase):
             return next(d for d in self.dones if d.step == step and not d.error)
 
     def count_at(self, step: int, topic: str) -> int:
-        return next((int(c.count) for c in self.done_of(step).published if c.topic == topic), 0)
+        done = self.done_of(step)
+        counts = dict(zip(done.topics.split("\n") if done.topics else [], done.published, strict=True))
+        return int(counts.get(topic, 0))
 
     def export(self, apply_after: int | None) -> Any:
         headers = None if apply_after is None else {APPLY_AFTER_HEADER: str(apply_after)}

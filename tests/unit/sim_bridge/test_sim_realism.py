@@ -591,10 +591,13 @@ def test_latency_and_dropped_frames_in_the_engine(world: World, renderer: Render
     eng = BridgeEngine(cfg, world, renderer)
     images: list[tuple[float, float]] = []
     dets = 0
+    infos: list[float] = []  # the stamps the node publishes a camera_info with (delivered and not sent yet)
     for k in range(40):
         t = round(0.1 * k, 6)
         out = eng.step(_state(t, (0.0, 0.0, 300.0)), home=None, wanted=lambda _n: True)
         for c in out.cameras:
+            if c.delivered and not c.info_sent:
+                infos.append(round(c.t_capture_s, 6))
             if c.frame is not None:
                 images.append((t, c.t_capture_s))
                 assert c.detections is None  # the detections went out on time, with their own frame
@@ -602,6 +605,7 @@ def test_latency_and_dropped_frames_in_the_engine(world: World, renderer: Render
                 dets += 1
                 assert c.t_capture_s == pytest.approx(t)
     assert dets == 40  # ground truth is never late nor lost
+    assert len(infos) == len(set(infos)) == 40, "one camera_info per captured frame, not one more with its images"
     assert all(t_out == pytest.approx(t_cap + 0.2) for t_out, t_cap in images)
     assert 15 < len(images) < 36  # ~30 % dropped (seeded); the last 0.2 s still in flight
 

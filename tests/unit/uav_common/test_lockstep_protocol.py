@@ -76,7 +76,20 @@ def test_no_join_after_the_start_and_no_tick_that_is_not_grantable() -> None:
     with pytest.raises(LockstepError, match="waiting for /controller"):
         b.tick(0.2, {})
     with pytest.raises(LockstepError, match="lookahead_steps must be >= 1"):
-        Manifest("/x", 0)
+        Manifest("/x", -1)
+
+
+def test_a_static_participant_is_never_waited_for_and_its_start_up_counts_stay() -> None:
+    b = StepBarrier(MASTER)
+    b.join(Manifest("/robot_description", 0), {"/tf_static": 1})
+    b.join(Manifest("/controller", 1), {})
+    b.start()
+    assert b.tick(0.1, {}).counts[("/tf_static", "/robot_description")] == 1
+    b.done("/controller", 1, {})
+    assert [w.node for w in b.waiting()] == []
+    assert b.tick(0.2, {}).counts[("/tf_static", "/robot_description")] == 1
+    with pytest.raises(LockstepError, match="in order"):
+        b.done("/robot_description", 1, {"/tf_static": 1})
 
 
 def _tick(step: int, counts: dict[tuple[str, str], int], *participants: str) -> Tick:

@@ -162,6 +162,19 @@ ros::Time Participant::now() const {
   return stamp_;
 }
 
+/// The lines of a protocol text field ("" has none).
+std::vector<std::string> splitLines(const std::string& text) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  while (start < text.size()) {
+    const auto end = text.find('\n', start);
+    out.push_back(text.substr(start, end == std::string::npos ? std::string::npos : end - start));
+    if (end == std::string::npos) break;
+    start = end + 1;
+  }
+  return out;
+}
+
 // ------------------------------------------------------------------------------------------------- callbacks
 
 void Participant::file(const std::string& topic, const std::string& publisher, const Message& msg) {
@@ -176,8 +189,22 @@ void Participant::onTick(const uav_msgs::LockstepTick::ConstPtr& msg) {
   PendingTick pending;
   pending.tick.step = msg->step;
   pending.tick.t_s = stampSeconds(msg->header.stamp.sec, msg->header.stamp.nsec);
-  for (const auto& c : msg->counts) pending.tick.counts[{c.topic, c.publisher}] = c.count;
-  pending.tick.participants.insert(msg->participants.begin(), msg->participants.end());
+  // "topic publisher" lines aligned with the counts (they change only when a publisher first publishes on a topic)
+  if (msg->counted != counted_) {
+    counted_ = msg->counted;
+    keys_.clear();
+    for (const std::string& line : splitLines(counted_)) {
+      const auto space = line.find(' ');
+      keys_.emplace_back(line.substr(0, space), space == std::string::npos ? std::string() : line.substr(space + 1));
+    }
+  }
+  if (keys_.size() != msg->counts.size()) {
+    ROS_ERROR("%s: lockstep: a malformed tick of step %llu: %zu keys, %zu counts (ignored)", node_.c_str(),
+              static_cast<unsigned long long>(msg->step), keys_.size(), msg->counts.size());
+    return;
+  }
+  for (std::size_t i = 0; i < keys_.size(); ++i) pending.tick.counts[keys_[i]] = msg->counts[i];
+  for (const std::string& name : splitLines(msg->participants)) pending.tick.participants.insert(name);
   pending.stamp = msg->header.stamp;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -272,12 +299,9 @@ void Participant::join() {
   for (const Timer& t : timers_) srv.request.timers.push_back(t.timer.describe());
   {
     std::lock_guard<std::mutex> lock(counts_mutex_);
-    for (const auto& [topic, n] : counts_) {
-      uav_msgs::LockstepCount c;
-      c.topic = topic;
-      c.publisher = node_;
-      c.count = n;
-      srv.request.published.push_back(c);
+    for (const auto& [topic, n] : counts_) {  // sorted by topic
+      srv.request.topics += (srv.request.topics.empty() ? "" : "\n") + topic;
+      srv.request.published.push_back(n);
     }
   }
   if (!ros::service::call(service, srv)) {
@@ -411,11 +435,8 @@ void Participant::reportDone(uint64_t step, const std::string& error) {
   {
     std::lock_guard<std::mutex> lock(counts_mutex_);
     for (const auto& [topic, n] : counts_) {  // sorted by topic
-      uav_msgs::LockstepCount c;
-      c.topic = topic;
-      c.publisher = node_;
-      c.count = n;
-      msg.published.push_back(c);
+      msg.topics += (msg.topics.empty() ? "" : "\n") + topic;
+      msg.published.push_back(n);
     }
   }
   done_pub_.publish(msg);

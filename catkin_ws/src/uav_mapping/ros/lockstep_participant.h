@@ -188,6 +188,8 @@ class Participant {
   std::condition_variable cv_;
   InputLedger<Message> ledger_;
   std::deque<PendingTick> ticks_;
+  std::string counted_;                                    // the last tick's "topic publisher" lines
+  std::vector<std::pair<std::string, std::string>> keys_;  // ... parsed (tick callback thread only)
   BoundaryQueue<RequestPtr> requests_;
   uint64_t first_step_ = 1;
   uint64_t finished_step_ = 0;

@@ -43,7 +43,8 @@ class LockstepError(UavCommonError):
 
 @dataclass(frozen=True)
 class Manifest:
-    """What a participant declares when it joins (docs/lockstep.md, "What each participant declares")."""
+    """What a participant declares when it joins (docs/lockstep.md, "What each participant declares").
+    ``lookahead_steps`` 0 makes it static: its start-up counts are all it ever publishes, nobody waits for it."""
 
     node: str
     lookahead_steps: int
@@ -55,9 +56,14 @@ class Manifest:
         if not self.node:
             msg = "a participant needs a node name"
             raise LockstepError(msg)
-        if self.lookahead_steps < 1:
-            msg = f"{self.node}: lookahead_steps must be >= 1, got {self.lookahead_steps}"
+        if self.lookahead_steps < 0:
+            msg = f"{self.node}: lookahead_steps must be >= 1 (or 0: static, no steps), got {self.lookahead_steps}"
             raise LockstepError(msg)
+
+    @property
+    def static(self) -> bool:
+        """A participant that publishes only before the first step and never steps (e.g. static transforms)."""
+        return self.lookahead_steps == 0
 
 
 @dataclass(frozen=True)
@@ -146,7 +152,7 @@ class StepBarrier:
         if part is None:
             msg = f"a done for step {step} from {node}, which has not joined the causal lockstep"
             raise LockstepError(msg)
-        if step != part.done_step + 1 or step > self.step:
+        if part.manifest.static or step != part.done_step + 1 or step > self.step:
             msg = (
                 f"{node} reported done with step {step}, but its last step was {part.done_step} and the master is "
                 f"at step {self.step}: steps must be finished one by one, in order"
@@ -167,6 +173,8 @@ class StepBarrier:
         out = []
         for name in sorted(self._parts):
             part = self._parts[name]
+            if part.manifest.static:
+                continue
             needs = nxt - part.manifest.lookahead_steps
             if part.done_step < needs:
                 out.append(Waiting(name, needs, part.done_step))
@@ -195,7 +203,7 @@ class StepBarrier:
         self._master_counts = dict(master_counts)
         counts: dict[Key, int] = {(t, self.master): n for t, n in master_counts.items() if n > 0}
         for name, part in self._parts.items():
-            want = k - part.manifest.lookahead_steps
+            want = 0 if part.manifest.static else k - part.manifest.lookahead_steps
             # Drop what no later tick can need (their `want` only grows), keeping the entry at `want`.
             while len(part.history) > 1 and part.history[1][0] <= want:
                 part.history.popleft()
@@ -245,6 +253,8 @@ class InputLedger(Generic[M]):
         self._pending: list[tuple[int, str, str, M]] = []  # unclassified until the first tick names participants
         self._participants: frozenset[str] | None = None
         self._seq = itertools.count()
+        self._keys_for: tuple[Key, ...] | None = None
+        self._keys_cache: list[Key] = []
 
     def add_topic(self, topic: str, *, first: bool = False) -> None:
         """Declare one more input topic (``first``: dispatched before the others, like tf)."""
@@ -252,6 +262,7 @@ class InputLedger(Generic[M]):
             return
         self.topics = (topic, *self.topics) if first else (*self.topics, topic)
         self._order = {t: i for i, t in enumerate(self.topics)}
+        self._keys_for = None
 
     def received(self, topic: str, publisher: str, msg: M) -> None:
         """A message arrived (any thread; the shell serialises calls)."""
@@ -284,10 +295,9 @@ class InputLedger(Generic[M]):
         """
         self._learn(tick)
         out = []
-        for (topic, publisher), expected in sorted(tick.counts.items()):
-            if topic not in self._order:
-                continue
-            key = (topic, publisher)
+        for key in self._keys(tick):
+            topic, publisher = key
+            expected = tick.counts[key]
             taken = self._taken.get(key, 0)
             if expected < taken:
                 msg = (
@@ -298,7 +308,7 @@ class InputLedger(Generic[M]):
             have = taken + len(self._fifo.get(key, ()))
             if have < expected:
                 out.append(Missing(topic, publisher, expected, have))
-        return out
+        return sorted(out, key=lambda m: (m.topic, m.publisher))
 
     def take(self, tick: Tick) -> list[tuple[str, M]]:
         """The step's inputs in dispatch order: counted ones by topic, publisher, arrival; then foreign ones.
@@ -312,11 +322,7 @@ class InputLedger(Generic[M]):
             msg = f"step {tick.step}: {m.topic} from {m.publisher}: {m.received} of {m.expected} messages"
             raise LockstepError(msg)
         out: list[tuple[str, M]] = []
-        keys = sorted(
-            (k for k in tick.counts if k[0] in self._order),
-            key=lambda k: (self._order[k[0]], k[1]),
-        )
-        for key in keys:
+        for key in self._keys(tick):
             n = tick.counts[key] - self._taken.get(key, 0)
             fifo = self._fifo.get(key)
             for _ in range(n):
@@ -326,6 +332,16 @@ class InputLedger(Generic[M]):
         foreign, self._foreign = self._foreign, []
         out.extend((topic, msg) for _, topic, msg in foreign)
         return out
+
+    def _keys(self, tick: Tick) -> list[Key]:
+        """The tick's (topic, publisher) keys of this subscriber's topics, in dispatch order (cached per key set:
+        it changes only when a publisher first publishes on a topic)."""
+        ident = tuple(tick.counts)
+        if ident != self._keys_for:
+            order = self._order
+            self._keys_cache = sorted((k for k in tick.counts if k[0] in order), key=lambda k: (order[k[0]], k[1]))
+            self._keys_for = ident
+        return self._keys_cache
 
     def held(self) -> int:
         """Messages received and not yet dispatched (a publisher ahead of the ticks)."""

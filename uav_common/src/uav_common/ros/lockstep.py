@@ -56,6 +56,19 @@ class LockstepSettings:
     ns: str = DEFAULT_NS
 
 
+def _sync_publisher(topic: str, msg_class: Any, *, latch: bool = False) -> Any:
+    """A publisher that writes in the caller's thread (rospy's ``queue_size=None``): lossless, in order, and for
+    the protocol's small messages cheaper than a writer thread per connection. rospy warns about a missing
+    ``queue_size`` there; here it is the point."""
+    import warnings  # noqa: PLC0415
+
+    import rospy  # noqa: PLC0415
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SyntaxWarning)
+        return rospy.Publisher(topic, msg_class, queue_size=None, latch=latch, tcp_nodelay=True)
+
+
 def causal_enabled(ns: str = DEFAULT_NS) -> bool:
     """Is this run's time the causal lockstep (``/lockstep/causal``)?"""
     import rospy  # noqa: PLC0415
@@ -78,7 +91,7 @@ def read_settings(node: str, default_lookahead: int, ns: str = DEFAULT_NS) -> Lo
         raise LockstepError(msg)
     bare = node.lstrip("/")
     value = table.get(bare, table.get(node, default_lookahead))
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if isinstance(value, bool) or not isinstance(value, int) or value < (0 if default_lookahead == 0 else 1):
         msg = f"{ns}/lookahead_steps/{bare} must be an integer >= 1, got {value!r}"
         raise LockstepError(msg)
     watchdog = rospy.get_param(f"{ns}/watchdog_s", 120.0)
@@ -150,7 +163,9 @@ class Participant(_Counter):
     """One node's lockstep participation (see the module docstring). Build it after ``rospy.init_node``.
 
     Args:
-        lookahead_steps: the node's default lookahead (``/lockstep/lookahead_steps`` overrides it).
+        lookahead_steps: the node's default lookahead (``/lockstep/lookahead_steps`` overrides it); 0: a static
+            participant, which publishes only before the first step (e.g. static transforms), joins and then only
+            spins: nobody waits for it and it gets no ticks.
         ns: the protocol's namespace.
     """
 
@@ -176,15 +191,26 @@ class Participant(_Counter):
         self._outputs: list[str] = []
         self.finished_step = 0
         self.processing_step: int | None = None
+        #: Wall seconds this node spent per input topic, timer and in its step hooks (the log at the end).
+        self.spent_s: dict[str, float] = {}
+        self._calls: Any = None  # the threads of call_later
         self.t_s = 0.0
         self.step_s = 0.0
         self._first_step = 1
         self._joined = False
         self._stopped = False
-        if self.causal:
+        self.static = self.settings.lookahead_steps == 0
+        self._keys: tuple[tuple[str, str], ...] = ()
+        self._counted = ""
+        self._participants: frozenset[str] = frozenset()
+        self._participants_text = ""
+        if self.causal and not self.static:
             self._take_over_clock()
-            self._tick_sub = rospy.Subscriber(f"{ns}/tick", _tick_class(), self._on_tick, queue_size=None)
-            self._done_pub = rospy.Publisher(f"{ns}/done", _done_class(), queue_size=0, tcp_nodelay=True)
+            self._tick_sub = rospy.Subscriber(
+                f"{ns}/tick", _tick_class(), self._on_tick, queue_size=None, tcp_nodelay=True
+            )
+            self._done_pub = _sync_publisher(f"{ns}/done", _done_class())
+        if self.causal:
             rospy.on_shutdown(self._on_shutdown)
 
     # ------------------------------------------------------------------ building the node
@@ -318,6 +344,36 @@ class Participant(_Counter):
             headers = {APPLY_AFTER_HEADER: str(step + self.settings.lookahead_steps - 1)}
         return rospy.ServiceProxy(name, srv_class, headers=headers)(request)
 
+    def call_later(self, name: str, srv_class: Any, request: Any, *, wait_s: float = 2.0) -> tuple[int, Any]:
+        """Causal lockstep: start a service call that the server applies at the boundary after step
+        ``processing_step + L - 1`` (as :meth:`call`), without waiting for it in this step; returns
+        ``(due_step, future)``: the answer is the caller's to take at step ``due_step`` (``processing_step + L``)
+        with ``future.result()``. By then the server has applied it (the master cannot grant that step before),
+        so taking it there is the same in every run, and the caller does not stand still meanwhile: a
+        participant with a long lookahead would otherwise wait that many steps for the answer.
+
+        Raises:
+            LockstepError: not in the causal lockstep (use :meth:`call`).
+        """
+        import concurrent.futures  # noqa: PLC0415
+
+        import rospy  # noqa: PLC0415
+
+        if not self.causal:
+            msg = "call_later is for the causal lockstep; use call"
+            raise LockstepError(msg)
+        step = self.processing_step if self.processing_step is not None else self.finished_step
+        boundary = step + self.settings.lookahead_steps - 1
+        headers = {APPLY_AFTER_HEADER: str(boundary)}
+
+        def run() -> Any:
+            rospy.wait_for_service(name, timeout=wait_s)
+            return rospy.ServiceProxy(name, srv_class, headers=headers)(request)
+
+        if self._calls is None:
+            self._calls = concurrent.futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="lockstep-call")
+        return boundary + 1, self._calls.submit(run)
+
     def tf_buffer(self, cache_s: float = 30.0) -> Any:
         """A tf2 buffer: fed by counted ``/tf`` and ``/tf_static`` inputs (causal), or a ``TransformListener``."""
         import rospy  # noqa: PLC0415
@@ -337,8 +393,9 @@ class Participant(_Counter):
             for t in msg.transforms:
                 buf.set_transform_static(t, "lockstep")
 
-        self.subscribe("/tf_static", TFMessage, static, priority=True, buff_size=2**20)
+        # priority topics go first, the last declared first: /tf_static, then /tf (as the C++ twin)
         self.subscribe("/tf", TFMessage, dynamic, priority=True, buff_size=2**20)
+        self.subscribe("/tf_static", TFMessage, static, priority=True, buff_size=2**20)
         return buf
 
     def tf_broadcaster(self, *, static: bool = False) -> Any:
@@ -369,6 +426,9 @@ class Participant(_Counter):
             rospy.spin()
             return
         self._join()
+        if self.static:
+            rospy.spin()
+            return
         while not rospy.is_shutdown() and not self._stopped:
             work = self._next_work()
             if work is None:
@@ -396,13 +456,15 @@ class Participant(_Counter):
                 )
         with self._count_lock:
             published = dict(self._counts)
+        topics = sorted(published)
         req = LockstepJoinRequest(
             node=self.node,
             lookahead_steps=self.settings.lookahead_steps,
             inputs=list(self._inputs),
             outputs=list(self._outputs),
             timers=[t.describe() for t, _ in self._timers],
-            published=_count_msgs(self.node, published),
+            topics="\n".join(topics),
+            published=[published[t] for t in topics],
         )
         resp = rospy.ServiceProxy(service, LockstepJoin)(req)
         if not resp.accepted:
@@ -412,9 +474,10 @@ class Participant(_Counter):
         self.finished_step = self._first_step - 1
         self.step_s = float(resp.step_s)
         self._joined = True
+        what = "static" if self.static else f"lookahead {self.settings.lookahead_steps} steps"
         rospy.loginfo(
-            f"{self.node}: lockstep: joined (lookahead {self.settings.lookahead_steps} steps, "
-            f"{len(self._inputs)} inputs, {len(self._outputs)} outputs, {len(self._timers)} timers)"
+            f"{self.node}: lockstep: joined ({what}, {len(self._inputs)} inputs, {len(self._outputs)} outputs, "
+            f"{len(self._timers)} timers)"
         )
 
     def _next_work(self) -> Tick | list[_Request] | None:
@@ -456,17 +519,30 @@ class Participant(_Counter):
         self._set_clock(tick.t_s)
         for hook in self._before_hooks:
             hook(tick.step, tick.t_s)
+        t0 = time.perf_counter()
         batch = self._wait_inputs(tick)
+        clock = time.perf_counter
+        spent = self.spent_s
+        t1 = clock()
+        spent["(waiting for inputs)"] = spent.get("(waiting for inputs)", 0.0) + t1 - t0
         for topic, msg in batch:
             for callback in self._callbacks.get(topic, ()):
                 callback(msg)
+            t2 = clock()
+            spent[topic] = spent.get(topic, 0.0) + t2 - t1
+            t1 = t2
         for t, callback in self._timers:
             if t.due(tick.t_s):
                 callback(tick.t_s)
+                t2 = clock()
+                key = f"(timer {t.name})"
+                spent[key] = spent.get(key, 0.0) + t2 - t1
+                t1 = t2
         for hook in self._step_hooks:
             hook(tick.step, tick.t_s)
         for hook in self._after_hooks:
             hook(tick.step, tick.t_s)
+        spent["(step hooks)"] = spent.get("(step hooks)", 0.0) + clock() - t1
         self._report_done(tick.step, "")
         with self._cond:
             self.finished_step = tick.step
@@ -502,9 +578,10 @@ class Participant(_Counter):
         from uav_msgs.msg import LockstepDone  # noqa: PLC0415
 
         with self._count_lock:
-            published = dict(self._counts)
+            topics = sorted(self._counts)
+            counts = [self._counts[t] for t in topics]
         self._done_pub.publish(
-            LockstepDone(node=self.node, step=step, published=_count_msgs(self.node, published), error=error)
+            LockstepDone(node=self.node, step=step, topics="\n".join(topics), published=counts, error=error)
         )
 
     def _fail(self, text: str) -> None:
@@ -521,12 +598,28 @@ class Participant(_Counter):
             self._cond.notify_all()
 
     def _on_shutdown(self) -> None:
+        import rospy  # noqa: PLC0415
+
         self.stop()
+        if self.spent_s:
+            top = sorted(self.spent_s.items(), key=lambda kv: -kv[1])[:8]
+            rospy.loginfo(
+                f"{self.node}: lockstep: {self.finished_step} steps; wall time per input and timer: "
+                + ", ".join(f"{k} {v:.2f} s" for k, v in top)
+            )
 
     # ------------------------------------------------------------------ rospy plumbing
     def _on_tick(self, msg: Any) -> None:
-        counts = {(c.topic, c.publisher): int(c.count) for c in msg.counts}
-        tick = Tick(int(msg.step), msg.header.stamp.to_sec(), counts, frozenset(msg.participants))
+        if msg.counted != self._counted:  # changes only when a publisher first publishes on a topic
+            self._counted = msg.counted
+            self._keys = _parse_keys(msg.counted)
+        if msg.participants != self._participants_text:
+            self._participants_text = msg.participants
+            self._participants = frozenset(msg.participants.split("\n")) if msg.participants else frozenset()
+        if len(self._keys) != len(msg.counts):
+            self._fail(f"a malformed tick of step {msg.step}: {len(self._keys)} keys, {len(msg.counts)} counts")
+        counts = dict(zip(self._keys, msg.counts, strict=True))
+        tick = Tick(int(msg.step), msg.header.stamp.to_sec(), counts, self._participants)
         with self._cond:
             if self.step_s == 0.0:
                 self.step_s = float(msg.step_s)
@@ -557,10 +650,27 @@ def _describe(missing: list[Missing]) -> str:
     return ", ".join(parts) + more
 
 
-def _count_msgs(node: str, published: Mapping[str, int]) -> list[Any]:
-    from uav_msgs.msg import LockstepCount  # noqa: PLC0415
+def _parse_keys(counted: str) -> tuple[tuple[str, str], ...]:
+    """A tick's ``counted`` lines ("topic publisher") as keys."""
+    out = []
+    for line in counted.split("\n") if counted else ():
+        topic, _, publisher = line.partition(" ")
+        out.append((topic, publisher))
+    return tuple(out)
 
-    return [LockstepCount(topic=t, publisher=node, count=n) for t, n in sorted(published.items())]
+
+def _parse_counts(topics: str, counts: Iterable[int]) -> dict[str, int]:
+    """A done's (or join's) ``topics`` lines and ``published`` counts as a mapping.
+
+    Raises:
+        LockstepError: the two do not line up.
+    """
+    names = topics.split("\n") if topics else []
+    values = [int(n) for n in counts]
+    if len(names) != len(values):
+        msg = f"{len(names)} topics but {len(values)} counts"
+        raise LockstepError(msg)
+    return dict(zip(names, values, strict=True))
 
 
 def _tick_class() -> Any:
@@ -617,11 +727,17 @@ class StepMaster(_Counter):
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
-        self._tick_pub = rospy.Publisher(f"{ns}/tick", LockstepTick, queue_size=0, tcp_nodelay=True)
+        self._tick_pub = _sync_publisher(f"{ns}/tick", LockstepTick)
+        self._counted = ""
+        self._keys: tuple[tuple[str, str], ...] = ()
         self._done_sub = rospy.Subscriber(f"{ns}/done", LockstepDone, self._on_done, queue_size=None, tcp_nodelay=True)
         self._join_srv = rospy.Service(f"{ns}/join", LockstepJoin, self._on_join)
         self._graph_checked = 0.0
         self.dones = 0
+        #: Wall seconds the master waited for each participant: the one whose done made the next step grantable
+        #: after the master had asked (the run's bottleneck, in the log at the end).
+        self.waited_s: dict[str, float] = {}
+        self._asked_wall: float | None = None
 
     # ------------------------------------------------------------------ outputs
     def publisher(self, topic: str, msg_class: Any, *, latch: bool = False) -> CountingPublisher:
@@ -674,38 +790,37 @@ class StepMaster(_Counter):
         from uav_msgs.srv import LockstepJoinResponse  # noqa: PLC0415
 
         manifest = Manifest(
-            str(req.node),
-            max(1, int(req.lookahead_steps)),
-            tuple(req.inputs),
-            tuple(req.outputs),
-            tuple(req.timers),
+            str(req.node), int(req.lookahead_steps), tuple(req.inputs), tuple(req.outputs), tuple(req.timers)
         )
-        published = {c.topic: int(c.count) for c in req.published}
         with self._lock:
             try:
+                published = _parse_counts(req.topics, req.published)
                 self.barrier.join(manifest, published)
             except LockstepError as err:
                 rospy.logerr(f"lockstep: {err}")
                 return LockstepJoinResponse(accepted=False, message=str(err), first_step=0, step_s=self.step_s)
+        what = "static" if manifest.static else f"lookahead {manifest.lookahead_steps}"
         rospy.loginfo(
-            f"lockstep: {manifest.node} joined (lookahead {manifest.lookahead_steps}; inputs {list(manifest.inputs)}; "
-            f"timers {list(manifest.timers)})"
+            f"lockstep: {manifest.node} joined ({what}; inputs {list(manifest.inputs)}; timers {list(manifest.timers)})"
         )
         self._wake()
         return LockstepJoinResponse(accepted=True, message="", first_step=1, step_s=self.step_s)
 
     def _on_done(self, msg: Any) -> None:
-        published = {c.topic: int(c.count) for c in msg.published}
         with self._lock:
             self.dones += 1
             if msg.error:
                 self._errors.append(f"{msg.node} at step {msg.step}: {msg.error}")
             else:
                 try:
-                    self.barrier.done(str(msg.node), int(msg.step), published)
+                    self.barrier.done(str(msg.node), int(msg.step), _parse_counts(msg.topics, msg.published))
                 except LockstepError as err:
-                    self._errors.append(str(err))
+                    self._errors.append(f"{msg.node}: {err}")
             self._progress_wall = time.monotonic()
+            if self._asked_wall is not None and self.barrier.can_grant():
+                node = str(msg.node)
+                self.waited_s[node] = self.waited_s.get(node, 0.0) + self._progress_wall - self._asked_wall
+                self._asked_wall = None
         self._wake()
 
     def try_start(self) -> bool:
@@ -742,6 +857,15 @@ class StepMaster(_Counter):
                     pubs, subs, subscriber_nodes=set(names), publisher_nodes=counted, topics=inputs,
                     bus_info=info, node_uri=uri,
                 )  # fmt: skip
+                # the protocol's own topics: every participant hears the ticks, the master hears every done
+                pending += unconnected_subscriptions(
+                    pubs, subs, subscriber_nodes=set(names), publisher_nodes={self.node},
+                    topics={f"{self.ns}/tick"}, bus_info=info, node_uri=uri,
+                )  # fmt: skip
+                pending += unconnected_subscriptions(
+                    pubs, subs, subscriber_nodes={self.node}, publisher_nodes=set(names),
+                    topics={f"{self.ns}/done"}, bus_info=info, node_uri=uri,
+                )  # fmt: skip
                 registered = {n for _, nodes in subs for n in nodes}
                 pending += [f"observer {n} is not up" for n in self.observers if n not in registered]
                 pending += unconnected_subscriptions(
@@ -770,7 +894,18 @@ class StepMaster(_Counter):
         with self._lock:
             if self._errors:
                 raise LockstepError("; ".join(self._errors))
-            return self.barrier.can_grant()
+            ok = self.barrier.can_grant()
+            if not ok and self._asked_wall is None and self.barrier.started:
+                self._asked_wall = time.monotonic()
+            return ok
+
+    def summary(self) -> str:
+        """What the master waited for, per participant (wall seconds), for the log at the end of a run."""
+        with self._lock:
+            waited = sorted(self.waited_s.items(), key=lambda kv: -kv[1])
+        total = sum(v for _, v in waited)
+        parts = ", ".join(f"{n} {v:.1f} s" for n, v in waited[:8])
+        return f"{self.step} steps, {self.dones} done reports; waited {total:.1f} s for participants ({parts})"
 
     def check_watchdog(self) -> None:
         """Report who the master has waited for; past ``/lockstep/watchdog_s`` of no progress, fail.
@@ -802,16 +937,21 @@ class StepMaster(_Counter):
         import rospy  # noqa: PLC0415
         from std_msgs.msg import Header  # noqa: PLC0415
 
-        from uav_msgs.msg import LockstepCount, LockstepTick  # noqa: PLC0415
+        from uav_msgs.msg import LockstepTick  # noqa: PLC0415
 
         with self._lock:
             tick = self.barrier.tick(t_s, dict(self._counts))
             self._progress_wall = time.monotonic()
+        keys = tuple(sorted(tick.counts))
+        if keys != self._keys:
+            self._keys = keys
+            self._counted = "\n".join(f"{t} {p}" for t, p in keys)
         msg = LockstepTick(
             header=Header(stamp=rospy.Time.from_sec(t_s)),
             step=tick.step,
             step_s=self.step_s,
-            counts=[LockstepCount(topic=t, publisher=p, count=n) for (t, p), n in sorted(tick.counts.items())],
-            participants=sorted(tick.participants),
+            counted=self._counted,
+            counts=[tick.counts[k] for k in keys],
+            participants="\n".join(sorted(tick.participants)),
         )
         self._tick_pub.publish(msg)

@@ -10,11 +10,14 @@ programming error (any other exception) is not caught: its traceback is the repo
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    from uav_common.ros.lockstep import Participant
 
 from uav_common.exit_codes import ExitCode, exit_code_for
 
-__all__ = ["run_node"]
+__all__ = ["run_node", "run_participant"]
 
 
 def run_node(
@@ -48,3 +51,26 @@ def run_node(
     except rospy.ROSInterruptException:
         pass
     raise SystemExit(int(ExitCode.OK))
+
+
+def run_participant(
+    name: str,
+    build: Callable[[Participant], None],
+    *,
+    lookahead_steps: int,
+    errors: tuple[type[BaseException], ...] = (),
+) -> NoReturn:
+    """:func:`run_node` for an in-loop node (docs/lockstep.md): ``rospy.init_node(name)``, its
+    :class:`~uav_common.ros.lockstep.Participant` (``lookahead_steps`` is its default lookahead), ``build(ls)``
+    (parses the ``~params``, builds and starts the node through ``ls``), then ``ls.spin()``; the same error
+    policy and exit codes. Every in-loop Python node's ``main`` is this one line.
+    """
+
+    def body() -> None:
+        from uav_common.ros.lockstep import Participant  # noqa: PLC0415 - rospy is imported by run_node first
+
+        ls = Participant(lookahead_steps=lookahead_steps)
+        build(ls)
+        ls.spin()
+
+    run_node(name, body, errors=errors)

@@ -95,6 +95,9 @@ class CameraOutput:
     #: With a fault: what the box-only detector reports for this frame (the frozen frame's boxes when stuck,
     #: none in garbage); None: nothing. Without one, the box-only detector reports ``detections``.
     boxes: list[GroundTruthDetection] | None = None
+    #: A delayed frame whose camera_info already went out with its detections at capture time (the images follow
+    #: with the same stamp; its camera_info must not go out twice).
+    info_sent: bool = False
 
     @property
     def delivered(self) -> bool:
@@ -552,9 +555,10 @@ class BridgeEngine:
         for out in outputs:
             latency = self.cfg.environment.effects_for(out.camera.name).latency_s
             if latency > 0.0 and out.frame is not None:
-                if out.detections is not None:  # detections are ground truth: never delayed
+                early = out.detections is not None
+                if early:  # detections are ground truth: never delayed (the camera_info goes out with them)
                     ready.append(dataclasses.replace(out, frame=None, depth_m=None))
-                self._delayed.append(out)
+                self._delayed.append(dataclasses.replace(out, info_sent=early))
             else:
                 ready.append(out)
         keep = []

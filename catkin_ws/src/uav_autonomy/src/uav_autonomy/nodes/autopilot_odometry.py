@@ -35,6 +35,10 @@ gap costs accuracy while the vehicle turns), but when the node has fallen behind
 running many times faster than real time on a loaded machine) it skips those more than
 ``BACKLOG_STALE_TIMEOUTS`` stale timeouts behind the newest (counted as ``superseded``) instead of working
 through a backlog.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps and no reader thread: its MAVLink link
+is a lockstep client of the router; each step it reads the autopilot's messages up to the router's step marker,
+publishes their estimates (every one: no backlog to shed), sends what is due, and ends with its own marker.
 """
 
 from __future__ import annotations
@@ -44,7 +48,6 @@ import threading
 import time
 
 import rospy
-import tf2_ros
 from geometry_msgs.msg import PointStamped, TransformStamped
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Header
@@ -63,7 +66,8 @@ from uav_autonomy.errors import InvalidInputError, UavAutonomyError
 from uav_autonomy.mavlink.link import MavlinkLink
 from uav_autonomy.ros.conversions import odometry_msg
 from uav_autonomy.ros.params import AutopilotOdometryParams, mavlink_node_section
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import EstimateStatus
 
@@ -75,6 +79,8 @@ _INTERVAL_RETRY_S = 5.0
 _LINK_TIMEOUT_S = 2.0
 #: A read holding estimates this many stale timeouts older than its newest is a backlog: those are skipped.
 BACKLOG_STALE_TIMEOUTS = 3.0
+#: Steps between its inputs and when its estimates are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 class AutopilotOdometryNode:
@@ -111,22 +117,34 @@ class AutopilotOdometryNode:
         self._stop = threading.Event()
 
     # ------------------------------------------------------------------ setup
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
         cfg = self.cfg
-        self.pub_odom = rospy.Publisher(self.odom_topic, Odometry, queue_size=50)
-        self.pub_status = rospy.Publisher("~status", EstimateStatus, queue_size=10, latch=True)
-        self.pub_target = rospy.Publisher("~target", PointStamped, queue_size=20)
-        self.tf = tf2_ros.TransformBroadcaster()
-        self.tf_static = tf2_ros.StaticTransformBroadcaster()
+        self.ls = ls
+        self.pub_odom = ls.publisher(self.odom_topic, Odometry, queue_size=50)
+        self.pub_status = ls.publisher("~status", EstimateStatus, queue_size=10, latch=True)
+        self.pub_target = ls.publisher("~target", PointStamped, queue_size=20)
+        self.tf = ls.tf_broadcaster()
+        self.tf_static = ls.tf_broadcaster(static=True)
         identity = TransformStamped()
         identity.header = Header(stamp=rospy.Time(0), frame_id=cfg.map_frame)
         identity.child_frame_id = cfg.odom_frame
         identity.transform.rotation.w = 1.0
         self.tf_static.sendTransform([identity])
         self.link.open(rospy.get_time(), time.monotonic())
-        rospy.Timer(rospy.Duration(1.0 / cfg.status_rate_hz), self._on_status_timer)
+        ls.timer(1.0 / cfg.status_rate_hz, self._on_status_timer, name="status")
+        if ls.causal:
+            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s)
+            ls.around_step(before=self.link.read_step, after=self.link.end_step)
+            ls.on_step(self._step)
+            return
         self._thread = threading.Thread(target=self._read_loop, name="autopilot_odometry-reader", daemon=True)
         self._thread.start()
+
+    def _step(self, _step: int, now: float) -> None:
+        """Causal lockstep: the step's messages were read (read_step); estimate them all, send what is due."""
+        with self._lock:
+            self._estimate_pending(now, now, shed=False)
+            self._send_periodic(now)
 
     def shutdown(self) -> None:
         self._stop.set()
@@ -141,7 +159,10 @@ class AutopilotOdometryNode:
                 self.link.wait_readable(0.05)
                 now, wall = rospy.get_time(), time.monotonic()
                 with self._lock:
-                    self.link.poll(now, wall)
+                    # each message stamped with the clocks when it is read, not the poll's start: a poll on a
+                    # loaded machine can outlast simulated seconds (the waypoint controller's poll does the same)
+                    self.link.poll(now, wall, clock=_clocks)
+                    now, wall = max(now, rospy.get_time()), time.monotonic()
                     self._estimate_pending(now, wall)
                     self._send_periodic(now)
             except UavAutonomyError as err:  # the socket could not be reopened: say so, keep trying
@@ -184,15 +205,16 @@ class AutopilotOdometryNode:
         elif mtype == "POSITION_TARGET_LOCAL_NED":
             self._on_position_target(msg, now)
 
-    def _estimate_pending(self, now: float, wall: float | None) -> None:
-        """The estimates this wake-up read (the socket is drained), in order, shedding a backlog (module doc)."""
+    def _estimate_pending(self, now: float, wall: float | None, *, shed: bool = True) -> None:
+        """The estimates this wake-up read (the socket is drained), in order, shedding a backlog (module doc)
+        unless ``shed`` is false (the causal lockstep has none: every step's estimates are published)."""
         pending, self._pending = self._pending, []
         if now <= 0.0 or not pending:
             return
         newest = max(_stamp_s(m) for m in pending)
-        shed = BACKLOG_STALE_TIMEOUTS * self.cfg.stale_timeout_s
+        backlog_s = BACKLOG_STALE_TIMEOUTS * self.cfg.stale_timeout_s if shed else math.inf
         for msg in pending:
-            if newest - _stamp_s(msg) > shed:
+            if newest - _stamp_s(msg) > backlog_s:
                 self.superseded += 1
             elif msg.get_type() == "ODOMETRY":  # type: ignore[attr-defined]
                 self._on_odometry(msg, now, wall)
@@ -295,8 +317,8 @@ class AutopilotOdometryNode:
         self.tf.sendTransform(tf)
         self._published += 1
 
-    def _on_status_timer(self, _event: object) -> None:
-        now, wall = rospy.get_time(), time.monotonic()
+    def _on_status_timer(self, now: float) -> None:
+        wall = now if self.ls.causal else time.monotonic()
         with self._lock:
             state, reason = self.watchdog.state(now, wall)
             tel = self.link.telemetry()
@@ -331,6 +353,11 @@ class AutopilotOdometryNode:
             rospy.loginfo(text + (f" ({self._source or 'no source yet'}, time {timing})"))
 
 
+def _clocks() -> tuple[float, float]:
+    """ROS time and the wall clock, read now (the link stamps each message it reads with them)."""
+    return rospy.get_time(), time.monotonic()
+
+
 def _stamp_s(msg: object) -> float:
     """The autopilot's time of an ODOMETRY (``time_usec``) or LOCAL_POSITION_NED (``time_boot_ms``)."""
     if hasattr(msg, "time_usec"):
@@ -339,17 +366,16 @@ def _stamp_s(msg: object) -> float:
 
 
 def main() -> None:
-    run_node("autopilot_odometry", _run, errors=(UavAutonomyError,))
+    run_participant("autopilot_odometry", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(AutopilotOdometryParams, "autopilot_odometry")
     config = mavlink_node_section(AutopilotOdometryConfig, "autopilot_odometry", params)
     node = AutopilotOdometryNode(config, params.odom_topic)
-    node.start()
+    node.start(ls)
     rospy.on_shutdown(node.shutdown)
     rospy.loginfo(
         f"autopilot_odometry: MAVLink on {config.connection_url}, {params.odom_topic} + tf "
         f"{config.map_frame} -> {config.odom_frame} -> {config.base_frame} (source {config.source})"
     )
-    rospy.spin()

@@ -21,6 +21,9 @@ Parameters:
 
 Evaluates on every new layers message (new observations), on target or weight
 changes, and at least every ``1 / rate_hz`` seconds (ROS time) with the last layers.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps; its inputs are counted, its
+timer fires from the step.
 """
 
 from __future__ import annotations
@@ -48,12 +51,15 @@ from uav_autonomy.ros.conversions import (
     target_from_points,
 )
 from uav_autonomy.ros.params import FeatureParams, autonomy_section
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import FeatureWeights, GridLayers, SearchTarget
 from uav_msgs.srv import GetGridLayers, GetGridLayersResponse
 
 REQUIRED_LAYERS = (ELEVATION, "last_seen_s", "observed")
+#: Steps between its inputs and when its features are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 PUBLISHED = (ELEVATION, *SCORED_FEATURES, "score")
 
 
@@ -88,22 +94,22 @@ class FeatureEvaluatorNode:
         self._last_msg: GridLayers | None = None
         self._info_spec: GridSpec | None = None
 
-    def start(self) -> None:
-        self.pub_features = rospy.Publisher("/autonomy/features", GridLayers, queue_size=1)
-        self.pub_info = rospy.Publisher(f"{self.image_ns}/info", MapMetaData, queue_size=1, latch=True)
+    def start(self, ls: Participant) -> None:
+        self.pub_features = ls.publisher("/autonomy/features", GridLayers, queue_size=1)
+        self.pub_info = ls.publisher(f"{self.image_ns}/info", MapMetaData, queue_size=1, latch=True)
         self.pub_images = {
             name: (
-                rospy.Publisher(f"{self.image_ns}/{name}/image", Image, queue_size=1),
-                rospy.Publisher(f"{self.image_ns}/{name}/image_color", Image, queue_size=1),
+                ls.publisher(f"{self.image_ns}/{name}/image", Image, queue_size=1),
+                ls.publisher(f"{self.image_ns}/{name}/image_color", Image, queue_size=1),
             )
             for name in PUBLISHED
         }
-        rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
-        rospy.Subscriber("/autonomy/target", SearchTarget, self.on_target, queue_size=10)
-        rospy.Subscriber("/autonomy/weights", FeatureWeights, self.on_weights, queue_size=10)
-        rospy.Service("~get_features", GetGridLayers, self.on_get_features)
-        rospy.Timer(rospy.Duration(1.0 / self.config.rate_hz), self.on_timer)
+        ls.subscribe("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
+        ls.subscribe(self.odom_topic, Odometry, self.on_odom, queue_size=1)
+        ls.subscribe("/autonomy/target", SearchTarget, self.on_target, queue_size=10)
+        ls.subscribe("/autonomy/weights", FeatureWeights, self.on_weights, queue_size=10)
+        ls.service("~get_features", GetGridLayers, self.on_get_features)
+        ls.timer(1.0 / self.config.rate_hz, self.on_timer, name="evaluate")
 
     # -------------------------------------------------------------- callbacks
     def on_layers(self, msg: GridLayers) -> None:
@@ -146,8 +152,8 @@ class FeatureEvaluatorNode:
             self._weights = weights
         self.evaluate()
 
-    def on_timer(self, _event: object) -> None:
-        if rospy.get_time() - self._last_eval_s >= 0.9 / self.config.rate_hz:
+    def on_timer(self, now_s: float) -> None:
+        if now_s - self._last_eval_s >= 0.9 / self.config.rate_hz:
             self.evaluate()
 
     def on_get_features(self, _req: object) -> GetGridLayersResponse:
@@ -192,13 +198,11 @@ class FeatureEvaluatorNode:
 
 
 def main() -> None:
-    run_node("feature_evaluator", _run, errors=(UavAutonomyError,))
+    run_participant("feature_evaluator", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(FeatureParams, "feature_evaluator")
     config = autonomy_section(FeatureConfig, "features", params.config, params.overrides)
-    node = FeatureEvaluatorNode(config, params.image_ns, params.odom_topic)
-    node.start()
+    FeatureEvaluatorNode(config, params.image_ns, params.odom_topic).start(ls)
     rospy.loginfo(f"feature_evaluator: running ({config})")
-    rospy.spin()

@@ -22,6 +22,8 @@ Parameters:
 
 A decision is made on every features message (new observations) and every
 ``1 / reevaluate_rate_hz`` seconds (ROS time); the goal and reason are published each time.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps.
 """
 
 from __future__ import annotations
@@ -47,10 +49,14 @@ from uav_autonomy.ros.conversions import (
     weights_msg,
 )
 from uav_autonomy.ros.params import GoalSelectorParams, autonomy_section
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import FeatureWeights, GoalReason, GridLayers, SearchTarget, UnreachableGoal
 from uav_msgs.srv import SetTarget, SetTargetResponse, SetWeights, SetWeightsResponse
+
+#: Steps between its inputs and when its goal is consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 class GoalSelectorNode:
@@ -66,22 +72,22 @@ class GoalSelectorNode:
         self._target = Target(config.target_xy_m) if config.target_xy_m else None
         self._target_changed_s: float | None = None
 
-    def start(self) -> None:
-        self.pub_goal = rospy.Publisher("/autonomy/goal", PointStamped, queue_size=1)
+    def start(self, ls: Participant) -> None:
+        self.pub_goal = ls.publisher("/autonomy/goal", PointStamped, queue_size=1)
         # Every goal is scored and recorded: a queue of 1 per connection dropped one of a burst for a subscriber
         # that was slower to take it (the recorder), so the bag and the live scorer disagreed.
-        self.pub_reason = rospy.Publisher("/autonomy/goal_reason", GoalReason, queue_size=50)
-        self.pub_weights = rospy.Publisher("/autonomy/weights", FeatureWeights, queue_size=1, latch=True)
-        self.pub_target = rospy.Publisher("/autonomy/target", SearchTarget, queue_size=1, latch=True)
+        self.pub_reason = ls.publisher("/autonomy/goal_reason", GoalReason, queue_size=50)
+        self.pub_weights = ls.publisher("/autonomy/weights", FeatureWeights, queue_size=1, latch=True)
+        self.pub_target = ls.publisher("/autonomy/target", SearchTarget, queue_size=1, latch=True)
         self._publish_weights()
         self._publish_target("config")
-        rospy.Subscriber("/autonomy/features", NumpyGridLayers, self.on_features, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
-        rospy.Subscriber("/autonomy/target_point", PointStamped, self.on_target_point, queue_size=10)
-        rospy.Subscriber("/autonomy/goal_unreachable", UnreachableGoal, self.on_unreachable, queue_size=10)
-        rospy.Service("~set_weights", SetWeights, self.on_set_weights)
-        rospy.Service("~set_target", SetTarget, self.on_set_target)
-        rospy.Timer(rospy.Duration(1.0 / self.config.reevaluate_rate_hz), lambda _e: self.decide())
+        ls.subscribe("/autonomy/features", NumpyGridLayers, self.on_features, queue_size=1, buff_size=2**26)
+        ls.subscribe(self.odom_topic, Odometry, self.on_odom, queue_size=1)
+        ls.subscribe("/autonomy/target_point", PointStamped, self.on_target_point, queue_size=10)
+        ls.subscribe("/autonomy/goal_unreachable", UnreachableGoal, self.on_unreachable, queue_size=10)
+        ls.service("~set_weights", SetWeights, self.on_set_weights)
+        ls.service("~set_target", SetTarget, self.on_set_target)
+        ls.timer(1.0 / self.config.reevaluate_rate_hz, lambda _now: self.decide(), name="reevaluate")
 
     def _header(self) -> Header:
         return Header(stamp=rospy.Time.now(), frame_id=self._frame_id)
@@ -193,12 +199,11 @@ class GoalSelectorNode:
 
 
 def main() -> None:
-    run_node("goal_selector", _run, errors=(UavAutonomyError,))
+    run_participant("goal_selector", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(GoalSelectorParams, "goal_selector")
     config = autonomy_section(GoalSelectorConfig, "goal_selector", params.config, params.overrides)
-    GoalSelectorNode(config, params.odom_topic).start()
+    GoalSelectorNode(config, params.odom_topic).start(ls)
     rospy.loginfo("goal_selector: running")
-    rospy.spin()

@@ -23,8 +23,11 @@ Parameters:
 Threads: callbacks only store their message and wake the planning thread, so a slow plan or a large
 map never blocks them. The planning thread plans when the goal moves more than
 ``replan_distance_m`` (or the first pose arrives after a goal), and at most every
-``map_check_period_s`` after a map update checks the rest of the current path against the new map:
+``map_check_period_s`` (ROS time) after a map update checks the rest of the current path against the new map:
 if it now comes closer than ``clearance_m`` to known obstacles, it replans at once.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps; there is no planning thread:
+the same planning step runs once a step, after the step's inputs, so what it plans is a function of the step.
 """
 
 from __future__ import annotations
@@ -68,11 +71,14 @@ from uav_autonomy.ros.conversions import (
     path_msg,
 )
 from uav_autonomy.ros.params import PlannerParams, autonomy_section
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import GridLayers, UnreachableGoal
 
 PathArray = npt.NDArray[np.float64]
+#: Steps between its inputs and when its path is consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 @dataclass
@@ -108,15 +114,19 @@ class PathPlannerNode:
     def uses_octomap(self) -> bool:
         return self.config.algorithm == "astar" and self.config.voxel_source == "octomap"
 
-    def start(self) -> None:
-        self.pub_path = rospy.Publisher("/autonomy/path", PathMsg, queue_size=1, latch=True)
-        self.pub_status = rospy.Publisher("~status", String, queue_size=5, latch=True)
-        self.pub_unreachable = rospy.Publisher("/autonomy/goal_unreachable", UnreachableGoal, queue_size=10)
-        rospy.Subscriber("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
-        rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=1)
-        rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
+    def start(self, ls: Participant) -> None:
+        self.ls = ls
+        self.pub_path = ls.publisher("/autonomy/path", PathMsg, queue_size=1, latch=True)
+        self.pub_status = ls.publisher("~status", String, queue_size=5, latch=True)
+        self.pub_unreachable = ls.publisher("/autonomy/goal_unreachable", UnreachableGoal, queue_size=10)
+        ls.subscribe("/map_server/layers", NumpyGridLayers, self.on_layers, queue_size=1, buff_size=2**26)
+        ls.subscribe(self.odom_topic, Odometry, self.on_odom, queue_size=1)
+        ls.subscribe("/autonomy/goal", PointStamped, self.on_goal, queue_size=1)
         if self.uses_octomap:
-            rospy.Subscriber("octomap_binary", rospy.AnyMsg, self.on_octomap, queue_size=1, buff_size=2**28)
+            ls.subscribe("octomap_binary", rospy.AnyMsg, self.on_octomap, queue_size=1, buff_size=2**28)
+        if ls.causal:
+            ls.on_step(lambda _step, _now: self._plan_step())
+            return
         self._thread = threading.Thread(target=self._run, name="path_planner", daemon=True)
         self._thread.start()
 
@@ -180,15 +190,21 @@ class PathPlannerNode:
             self._cond.notify()
 
     # ---------------------------------------------------------------- planning thread
+    def _snapshot(self) -> _Inputs:
+        with self._cond:
+            return _Inputs(**vars(self._in))
+
     def _run(self) -> None:
         while not (self._stop.is_set() or rospy.is_shutdown()):
             with self._cond:
                 self._cond.wait(timeout=max(self.config.map_check_period_s, 0.05))
-                inputs = _Inputs(**vars(self._in))
-            try:
-                self._step(inputs)
-            except Exception as err:
-                rospy.logerr(f"path_planner: planning step failed: {type(err).__name__}: {err}")
+            self._plan_step()
+
+    def _plan_step(self) -> None:
+        try:
+            self._step(self._snapshot())
+        except Exception as err:
+            rospy.logerr(f"path_planner: planning step failed: {type(err).__name__}: {err}")
 
     def _step(self, inputs: _Inputs) -> None:
         start, goal = inputs.start, inputs.goal
@@ -204,7 +220,7 @@ class PathPlannerNode:
         if self.uses_octomap and inputs.octomap is not None and self._path_source == "DEM":
             self._plan(inputs, "the voxel map arrived")
             return
-        now = time.monotonic()
+        now = rospy.get_time()  # simulated time in a run (and the step's in the causal lockstep)
         if now - self._last_check_s < self.config.map_check_period_s:
             return
         self._last_check_s = now
@@ -318,15 +334,14 @@ class PathPlannerNode:
 
 
 def main() -> None:
-    run_node("path_planner", _run, errors=(UavAutonomyError,))
+    run_participant("path_planner", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(PlannerParams, "path_planner")
     config = autonomy_section(PlannerConfig, "planner", params.config, params.overrides)
     node = PathPlannerNode(config, params.odom_topic)
-    node.start()
+    node.start(ls)
     rospy.on_shutdown(node.shutdown)
     source = f" over the {config.voxel_source}" if config.algorithm == "astar" else ""
     rospy.loginfo(f"path_planner: running ({config.algorithm}{source})")
-    rospy.spin()

@@ -11,6 +11,9 @@ Parameters:
 
 On a real vehicle this is where the camera extrinsics come from; in a scenario run the simulator renders
 each camera from the same file, so the two can never disagree.
+
+Causal lockstep (docs/lockstep.md): a participant that publishes its transforms once, before the first step
+(its start-up count), and then only reports each step done.
 """
 
 from __future__ import annotations
@@ -18,7 +21,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import rospy
-import tf2_ros
 from geometry_msgs.msg import TransformStamped
 from std_msgs.msg import Header
 
@@ -27,10 +29,15 @@ from uav_autonomy.ros.params import RobotDescriptionParams
 from uav_common.config import config_errors_as
 from uav_common.paths import config_file
 from uav_common.robot import RobotDescription, StaticTransform, load_robot_description
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 
 __all__ = ["main", "transform_msgs"]
+
+#: A static participant of the causal lockstep (docs/lockstep.md): it publishes nothing after start-up, so no step
+#: waits for it and it gets no ticks.
+NO_OUTPUTS_LOOKAHEAD = 0
 
 
 def transform_msgs(description: RobotDescription) -> list[TransformStamped]:
@@ -50,19 +57,18 @@ def _msg(t: StaticTransform) -> TransformStamped:
 
 
 def main() -> None:
-    run_node("robot_description", _run, errors=(UavAutonomyError,))
+    run_participant("robot_description", _build, lookahead_steps=NO_OUTPUTS_LOOKAHEAD, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(RobotDescriptionParams, "robot_description")
     with config_errors_as(AutonomyConfigError):
         path = Path(params.file).expanduser() if params.file else config_file("robot.yaml")
         description = load_robot_description(path)
-    broadcaster = tf2_ros.StaticTransformBroadcaster()
+    broadcaster = ls.tf_broadcaster(static=True)
     msgs = transform_msgs(description)
     broadcaster.sendTransform(msgs)
     rospy.loginfo(
         f"robot_description: {len(description.cameras)} camera(s) from {path}: "
         + ", ".join(f"{m.header.frame_id} -> {m.child_frame_id}" for m in msgs)
     )
-    rospy.spin()

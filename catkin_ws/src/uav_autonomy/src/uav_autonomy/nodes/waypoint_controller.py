@@ -32,6 +32,10 @@ One step per ROS time: when simulated time advances in lockstep steps longer tha
 the first steps the controller. Otherwise whether the autopilot's answer to a command sent by the
 first callback (e.g. the OFFBOARD confirmation) arrived before the second one would depend on
 process scheduling, and two lockstep runs could diverge by a step.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps, on both sides: its MAVLink link is
+a lockstep client of the router (it reads the autopilot's messages of step k up to the router's step marker, and
+ends its own with a marker), its ROS inputs are counted, and its timer fires once a step.
 """
 
 from __future__ import annotations
@@ -67,10 +71,14 @@ from uav_autonomy.ros.conversions import (
     yaw_from_quaternion,
 )
 from uav_autonomy.ros.params import ControllerParams, mavlink_node_section
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import ControllerState as ControllerStateMsg
 from uav_msgs.srv import SetControllerState, SetControllerStateResponse
+
+#: Steps between its inputs and when its outputs (MAVLink setpoints included) are consumed (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 def scripted_waypoints(req: object, default_altitude_m: float) -> list[tuple[float, float, float]]:
@@ -130,33 +138,43 @@ class WaypointControllerNode:
         self._last_status: ControllerStatus | None = None
         self._last_step_s: float | None = None
 
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
+        self.ls = ls
         self.link.open(rospy.get_time(), time.monotonic())
-        self.pub_state = rospy.Publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
-        self.pub_battery = rospy.Publisher("/uav/battery", BatteryState, queue_size=50)  # scored and recorded: no drops
-        self.pub_odom = rospy.Publisher("/uav/controller/odom", Odometry, queue_size=5)
-        rospy.Subscriber("/autonomy/path", PathMsg, self.on_path, queue_size=1)
-        rospy.Subscriber("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
+        self.pub_state = ls.publisher("/uav/controller/state", ControllerStateMsg, queue_size=10)
+        self.pub_battery = ls.publisher("/uav/battery", BatteryState, queue_size=50)  # scored and recorded: no drops
+        self.pub_odom = ls.publisher("/uav/controller/odom", Odometry, queue_size=5)
+        ls.subscribe("/autonomy/path", PathMsg, self.on_path, queue_size=1)
+        ls.subscribe("~manual_setpoint", PoseStamped, self.on_manual, queue_size=1)
         if self.pose_topic:
-            rospy.Subscriber(self.pose_topic, Odometry, self.on_pose, queue_size=10)
-        rospy.Service("~set_state", SetControllerState, self.on_set_state)
-        rospy.Timer(rospy.Duration(1.0 / self.config.setpoint_rate_hz), self.on_timer)
+            ls.subscribe(self.pose_topic, Odometry, self.on_pose, queue_size=10)
+        ls.service("~set_state", SetControllerState, self.on_set_state)
+        if ls.causal:
+            # The MAVLink side of the lockstep: HELLO now (registered before the first step), then each step's
+            # messages up to the router's marker before the step's inputs, and our marker after our setpoints.
+            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s)
+            ls.around_step(before=self.link.read_step, after=self.link.end_step)
+        ls.timer(1.0 / self.config.setpoint_rate_hz, self.on_timer, name="setpoints")
 
     def shutdown(self) -> None:
         self.link.close()
 
     # -------------------------------------------------------------- callbacks
-    def on_timer(self, _event: object) -> None:
-        now = rospy.get_time()
+    def _wall(self) -> float:
+        """The wall clock under the timeouts' floors; in the causal lockstep simulated time (floors are 0)."""
+        return self.ls.now_s() if self.ls.causal else time.monotonic()
+
+    def on_timer(self, now: float) -> None:
         if now == self._last_step_s:  # a catch-up callback at the same simulated time (see module docstring)
             return
         with self._lock:
-            now_wall = time.monotonic()  # the wall floor under every timeout (see core.controller)
-            self.link.poll(now, now_wall, clock=_clocks)
-            # What the poll read is as of its end, and on a loaded machine a poll can outlast simulated seconds
-            # (the process descheduled, or a burst of telemetry): step and stamp the state at that time, or a
-            # mode change read then is published as if seen when the callback started.
-            now, now_wall = max(now, rospy.get_time()), time.monotonic()
+            now_wall = self._wall()  # the wall floor under every timeout (see core.controller)
+            if not self.ls.causal:  # causal: the step's messages were read before its inputs (read_step)
+                self.link.poll(now, now_wall, clock=_clocks)
+                # What the poll read is as of its end, and on a loaded machine a poll can outlast simulated seconds
+                # (the process descheduled, or a burst of telemetry): step and stamp the state at that time, or a
+                # mode change read then is published as if seen when the callback started.
+                now, now_wall = max(now, rospy.get_time()), time.monotonic()
             self._last_step_s = now
             telemetry = self.link.telemetry()
             actions = self.core.step(now, telemetry, now_wall, self._pose_check(now, now_wall))
@@ -197,7 +215,7 @@ class WaypointControllerNode:
         with self._lock:
             assert self.pose_watchdog is not None
             if all(math.isfinite(v) for v in values):
-                self.pose_watchdog.valid(msg.header.stamp.to_sec(), rospy.get_time(), time.monotonic())
+                self.pose_watchdog.valid(msg.header.stamp.to_sec(), rospy.get_time(), self._wall())
             else:
                 self.pose_watchdog.invalid(f"a message with NaN/inf at {msg.header.stamp.to_sec():.2f} s")
 
@@ -263,15 +281,14 @@ class WaypointControllerNode:
 
 
 def main() -> None:
-    run_node("waypoint_controller", _run, errors=(UavAutonomyError,))
+    run_participant("waypoint_controller", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(UavAutonomyError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(ControllerParams, "waypoint_controller")
     config = mavlink_node_section(ControllerConfig, "controller", params)
     node = WaypointControllerNode(config, params.pose_topic)
-    node.start()
+    node.start(ls)
     rospy.on_shutdown(node.shutdown)
     watched = f", stops commanding when the pose on {params.pose_topic} is stale or NaN" if params.pose_topic else ""
     rospy.loginfo(f"waypoint_controller: MAVLink on {config.connection_url}{watched}")
-    rospy.spin()

@@ -29,13 +29,18 @@ import rospy
 from sensor_msgs.msg import CameraInfo
 from vision_msgs.msg import Detection2DArray
 
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_perception.core.detection.boxes import screen
 from uav_perception.core.detection.degrade import degrade, frame_rng
 from uav_perception.errors import PerceptionError
 from uav_perception.ros.params import DegradedDetectorParams, detection_classes
 from uav_perception.ros.vision import detection2d_array_msg, raw_detections_from_msg
+
+#: Steps between a frame's boxes and when its degraded boxes are consumed, in the causal lockstep
+#: (docs/lockstep.md); the camera info of a frame is dispatched before its boxes (declared first).
+LOOKAHEAD_STEPS = 2
 
 
 class DegradedDetectorNode:
@@ -47,14 +52,12 @@ class DegradedDetectorNode:
         self.lock = threading.Lock()
         self.frames = 0
 
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
         cam = self.p.camera
-        self.pub = rospy.Publisher("~detections", Detection2DArray, queue_size=50)
-        rospy.Subscriber(
-            self.p.camera_info or f"/cameras/{cam}/color/camera_info", CameraInfo, self.on_info, queue_size=5
-        )
+        self.pub = ls.publisher("~detections", Detection2DArray, queue_size=50)
+        ls.subscribe(self.p.camera_info or f"/cameras/{cam}/color/camera_info", CameraInfo, self.on_info, queue_size=5)
         topic = self.p.input or f"/detections/{cam}/ground_truth"
-        rospy.Subscriber(topic, Detection2DArray, self.on_truth, queue_size=100)
+        ls.subscribe(topic, Detection2DArray, self.on_truth, queue_size=100)
         rospy.loginfo(f"degraded_detector (a test instrument, not a detector): {topic} -> {self.pub.resolved_name}")
 
     def on_info(self, msg: CameraInfo) -> None:
@@ -77,10 +80,8 @@ class DegradedDetectorNode:
 
 
 def main() -> None:
-    run_node("degraded_detector", _run, errors=(PerceptionError,))
+    run_participant("degraded_detector", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(PerceptionError,))
 
 
-def _run() -> None:
-    node = DegradedDetectorNode(node_params(DegradedDetectorParams, "degraded_detector"))
-    node.start()
-    rospy.spin()
+def _build(ls: Participant) -> None:
+    DegradedDetectorNode(node_params(DegradedDetectorParams, "degraded_detector")).start(ls)

@@ -34,6 +34,10 @@ Parameters:
 Frames are converted in the subscriber callback and processed by one worker
 thread. When frames arrive faster than they are processed, only the newest is
 estimated; the others still join the history as partners (counted as ``busy``).
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 3 steps and no worker thread: every frame
+is estimated, in order, in the first step at which its pose is known (``~tf_timeout_s`` of simulated time after
+its stamp at the latest, then it is skipped as ``no_pose``), the same in every run.
 """
 
 from __future__ import annotations
@@ -54,7 +58,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
 from uav_common.ros.arrays import MessageLayoutError, image_msg, image_to_rgb
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import DepthEstimatorStatus
 from uav_perception.core.depth.config import EstimatorConfig
@@ -73,6 +78,8 @@ from uav_perception.ros.params import EstimatorParams, depth_section
 
 _QUEUE_MAX = 64
 _TIME_JUMP_NS = 1_000_000_000
+#: Steps between a frame and when its depth is consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 3
 _ODOM_CAPACITY = 2000
 
 
@@ -117,19 +124,23 @@ class DepthEstimatorNode:
         self._odom = PoseHistory(_ODOM_CAPACITY, max_gap_ns=200_000_000, max_extrapolation_ns=50_000_000)
         self._extrinsic: dict[str, CameraPose] = {}
 
-    def start(self) -> None:
-        """Create publishers, subscribers and the worker thread."""
+    def start(self, ls: Participant) -> None:
+        """Create publishers, subscribers and the worker thread (in the causal lockstep: the step hook)."""
         base = f"/cameras/{self.camera_name}/color"
-        self.pub_depth = rospy.Publisher("~depth/image_raw", Image, queue_size=2)
-        self.pub_info = rospy.Publisher("~depth/camera_info", CameraInfo, queue_size=2)
-        self.pub_points = rospy.Publisher("~points", PointCloud2, queue_size=2)
-        self.pub_status = rospy.Publisher("~status", DepthEstimatorStatus, queue_size=5)
-        self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0))
-        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
-        rospy.Subscriber(f"{base}/camera_info", CameraInfo, self.on_info, queue_size=2)
-        rospy.Subscriber(f"{base}/image_raw", Image, self.on_image, queue_size=8, buff_size=2**25)
+        self.ls = ls
+        self.pub_depth = ls.publisher("~depth/image_raw", Image, queue_size=2)
+        self.pub_info = ls.publisher("~depth/camera_info", CameraInfo, queue_size=2)
+        self.pub_points = ls.publisher("~points", PointCloud2, queue_size=2)
+        self.pub_status = ls.publisher("~status", DepthEstimatorStatus, queue_size=5)
+        self.tf_buffer = ls.tf_buffer(cache_s=30.0)
+        ls.subscribe(f"{base}/camera_info", CameraInfo, self.on_info, queue_size=2)
+        ls.subscribe(f"{base}/image_raw", Image, self.on_image, queue_size=8, buff_size=2**25)
         if self.pose_source == "odom":
-            rospy.Subscriber(self.odom_topic, Odometry, self.on_odom, queue_size=100)
+            ls.subscribe(self.odom_topic, Odometry, self.on_odom, queue_size=100)
+        if ls.causal:
+            self._queue = deque()  # every frame is estimated: nothing is dropped for being busy
+            ls.on_step(lambda _step, now: self._step(now))
+            return
         self._worker = threading.Thread(target=self._run, name="depth_estimator", daemon=True)
         self._worker.start()
 
@@ -194,6 +205,28 @@ class DepthEstimatorNode:
                 with self._lock:
                     self._extra_skips["error"] += 1
 
+    def _posed(self, header: Header) -> bool:
+        """Is the pose of this image known now (causal lockstep: the step's inputs decide)?"""
+        if self.pose_source == "tf":
+            return bool(self.tf_buffer.can_transform(self.map_frame, header.frame_id, header.stamp))
+        with self._lock:
+            return self._odom.at(header.stamp.to_nsec()) is not None
+
+    def _step(self, now_s: float) -> None:
+        """Causal lockstep: estimate each waiting frame, in order, once its pose is known (or it waited
+        ``tf_timeout_s`` of simulated time: then it is counted as ``no_pose``)."""
+        core = self._core
+        while self._queue and core is not None:
+            head = self._queue[0]
+            if not self._posed(head.header) and now_s - head.header.stamp.to_sec() < self.tf_timeout_s:
+                return
+            self._queue.popleft()
+            try:
+                self._handle(core, [head])
+            except Exception as err:  # the node must survive any single bad frame
+                rospy.logerr(f"depth_estimator: frame failed: {type(err).__name__}: {err}")
+                self._extra_skips["error"] += 1
+
     def _handle(self, core: MotionStereoEstimator, batch: list[_Pending]) -> None:
         newest = batch[-1]
         if newest.header.stamp.to_nsec() < self._last_posed_ns - _TIME_JUMP_NS:
@@ -242,7 +275,7 @@ class DepthEstimatorNode:
 
     def _lookup(self, target: str, source: str, stamp: rospy.Time, wait: bool) -> TransformStamped:
         """tf lookup that waits in *wall* time: a paused simulation clock must not block the worker."""
-        deadline = time.monotonic() + (self.tf_timeout_s if wait else 0.0)
+        deadline = time.monotonic() + (self.tf_timeout_s if wait and not self.ls.causal else 0.0)
         while True:
             try:
                 return self.tf_buffer.lookup_transform(target, source, stamp)
@@ -300,10 +333,10 @@ class DepthEstimatorNode:
 
 
 def main() -> None:
-    run_node("depth_estimator", _run, errors=(PerceptionError,))
+    run_participant("depth_estimator", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(PerceptionError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(EstimatorParams, "depth_estimator")
     config = depth_section(EstimatorConfig, "estimator", params.config, params.overrides)
     node = DepthEstimatorNode(
@@ -315,6 +348,5 @@ def _run() -> None:
         odom_topic=params.odom_topic,
         tf_timeout_s=params.tf_timeout_s,
     )
-    node.start()
+    node.start(ls)
     rospy.loginfo(f"depth_estimator: running on camera {node.camera_name!r}, poses from {node.pose_source}")
-    rospy.spin()

@@ -30,6 +30,9 @@ Parameters:
 An estimate waits (at most ``_MAX_PENDING`` of them) until ground truth with its
 stamp (within ``max_stamp_diff_s``) arrives; once the ground-truth stream has
 moved ``_GIVE_UP_S`` past it, the estimate is dropped and counted.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 3 steps (its inputs are counted, so what
+it evaluates is the same in every run).
 """
 
 from __future__ import annotations
@@ -48,7 +51,8 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from uav_common.ros.arrays import MessageLayoutError, image_to_depth_m, image_to_ids
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import DepthMetrics
 from uav_perception.core.depth.config import EvaluatorConfig
@@ -95,14 +99,14 @@ class DepthEvaluatorNode:
         self.dropped_no_truth = 0
         self.bad_input = 0
 
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
         """Publishers and subscribers."""
-        self.pub = rospy.Publisher("~metrics", DepthMetrics, queue_size=10)
+        self.pub = ls.publisher("~metrics", DepthMetrics, queue_size=10)
         base = f"/cameras/{self.camera_name}"
-        rospy.Subscriber(f"{base}/depth/image_raw", Image, self.on_truth, queue_size=10, buff_size=2**25)
+        ls.subscribe(f"{base}/depth/image_raw", Image, self.on_truth, queue_size=10, buff_size=2**25)
         if self.lut is not None or self.world_dir_param:
-            rospy.Subscriber(f"{base}/instance/image_raw", Image, self.on_instances, queue_size=10, buff_size=2**24)
-        rospy.Subscriber(self.estimate_topic, Image, self.on_estimate, queue_size=10, buff_size=2**25)
+            ls.subscribe(f"{base}/instance/image_raw", Image, self.on_instances, queue_size=10, buff_size=2**24)
+        ls.subscribe(self.estimate_topic, Image, self.on_estimate, queue_size=10, buff_size=2**25)
         rospy.on_shutdown(self.shutdown)
 
     def on_truth(self, msg: Image) -> None:
@@ -243,10 +247,10 @@ def _load_lut(objects_file: str, config: EvaluatorConfig) -> npt.NDArray[np.int1
 
 
 def main() -> None:
-    run_node("depth_evaluator", _run, errors=(PerceptionError,))
+    run_participant("depth_evaluator", _build, lookahead_steps=3, errors=(PerceptionError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(EvaluatorParams, "depth_evaluator")
     config = depth_section(EvaluatorConfig, "evaluator", params.config, params.overrides)
     lut = _load_lut(params.objects_file, config)
@@ -263,8 +267,7 @@ def _run() -> None:
         run_log=run_log,
         world_dir_param=params.world_dir_param,
     )
-    node.start()
+    node.start(ls)
     classes = "on" if lut is not None else "from the sim bridge's world_dir when it is set"
     log = f"in {run_log.run_dir}" if run_log else "off"
     rospy.loginfo(f"depth_evaluator: running on camera {params.camera!r}; classes {classes}; run log {log}")
-    rospy.spin()

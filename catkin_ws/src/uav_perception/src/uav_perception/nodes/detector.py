@@ -9,7 +9,8 @@ ROS interface:
 
 Subscribes:
     ``~image`` (sensor_msgs/Image rgb8/bgr8; "" = ``/cameras/<camera>/color/image_raw``): newest frame only
-    (a frame that arrives while the model runs replaces the waiting one).
+    (a frame that arrives while the model runs replaces the waiting one); in the causal lockstep every frame,
+    each in the step that delivers it (docs/lockstep.md: a participant with a lookahead of 2 steps).
 Publishes:
     ``~detections`` (vision_msgs/Detection2DArray): one message per processed frame, the image's header,
     box-only (class id, score in [0, 1]; pose unset).
@@ -34,13 +35,17 @@ from sensor_msgs.msg import Image
 from vision_msgs.msg import Detection2DArray
 
 from uav_common.ros.arrays import image_to_rgb
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_perception.errors import ModelFormatError, PerceptionError
 from uav_perception.ros.params import DetectorParams, detection_classes
 from uav_perception.ros.vision import detection2d_array_msg
 from uav_perception.shell.models import resolve_model
 from uav_perception.shell.onnx_detector import OnnxDetector
+
+#: Steps between a frame and when its detections are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 class DetectorNode:
@@ -68,10 +73,11 @@ class DetectorNode:
         self.discarded: Counter[str] = Counter()
         self.infer_s = 0.0
 
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
         topic = self.p.image or f"/cameras/{self.p.camera}/color/image_raw"
-        self.pub = rospy.Publisher("~detections", Detection2DArray, queue_size=10)
-        rospy.Subscriber(topic, Image, self.on_image, queue_size=1, buff_size=2**24)
+        self.pub = ls.publisher("~detections", Detection2DArray, queue_size=10)
+        every_frame = ls.causal
+        ls.subscribe(topic, Image, self.detect if every_frame else self.on_image, queue_size=1, buff_size=2**24)
         spec = self.model.spec
         size = "dynamic" if spec.input_hw is None else f"{spec.input_hw[1]}x{spec.input_hw[0]}"
         rospy.loginfo(
@@ -79,9 +85,10 @@ class DetectorNode:
             f"{self.p.threads} thread(s)): {topic} -> {self.pub.resolved_name}"
         )
         rospy.on_shutdown(self.report)
-        worker = threading.Thread(target=self.loop, daemon=True)
-        worker.start()
-        rospy.Timer(rospy.Duration(10.0), lambda _e: self.report(), oneshot=False)
+        if not every_frame:
+            worker = threading.Thread(target=self.loop, daemon=True)
+            worker.start()
+        ls.timer(10.0, lambda _now: self.report(), name="report")
 
     def on_image(self, msg: Image) -> None:
         with self.lock:
@@ -96,19 +103,22 @@ class DetectorNode:
                 while self.pending is None and not rospy.is_shutdown():
                     self.lock.wait(0.5)
                 msg, self.pending = self.pending, None
-            if msg is None:
-                continue
-            try:
-                image = image_to_rgb(msg)
-            except ValueError as err:
-                rospy.logwarn_throttle(5.0, f"detector: frame skipped: {err}")
-                continue
-            t0 = time.perf_counter()
-            dets, discarded = self.model.detect(image, self.class_ids)
-            self.infer_s += time.perf_counter() - t0
-            self.discarded.update(discarded)
-            self.frames += 1
-            self.pub.publish(detection2d_array_msg(msg.header, dets))
+            if msg is not None:
+                self.detect(msg)
+
+    def detect(self, msg: Image) -> None:
+        """Detect on one frame and publish its boxes (a frame that cannot be decoded is skipped and said)."""
+        try:
+            image = image_to_rgb(msg)
+        except ValueError as err:
+            rospy.logwarn_throttle(5.0, f"detector: frame skipped: {err}")
+            return
+        t0 = time.perf_counter()
+        dets, discarded = self.model.detect(image, self.class_ids)
+        self.infer_s += time.perf_counter() - t0
+        self.discarded.update(discarded)
+        self.frames += 1
+        self.pub.publish(detection2d_array_msg(msg.header, dets))
 
     def report(self) -> None:
         if self.frames:
@@ -120,10 +130,8 @@ class DetectorNode:
 
 
 def main() -> None:
-    run_node("detector", _run, errors=(PerceptionError,))
+    run_participant("detector", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(PerceptionError,))
 
 
-def _run() -> None:
-    node = DetectorNode(node_params(DetectorParams, "detector"))
-    node.start()
-    rospy.spin()
+def _build(ls: Participant) -> None:
+    DetectorNode(node_params(DetectorParams, "detector")).start(ls)

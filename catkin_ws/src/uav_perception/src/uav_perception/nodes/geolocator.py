@@ -46,14 +46,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import rospy
-import tf2_ros
 from rospy.numpy_msg import numpy_msg
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from vision_msgs.msg import Detection2DArray
 
 from uav_common.ros.arrays import MessageLayoutError, image_to_depth_m
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import DetectionArray, GeolocatorStatus, GridLayers
 from uav_perception.core.depth.types import CameraPose, PinholeCamera
@@ -69,11 +69,14 @@ from uav_perception.shell.dem import load_dem
 
 _DEPTH_KEEP = 30
 _STAMP_TOL_NS = 1_000_000
+#: Steps between a frame and when its placements are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 3
 
 
 @dataclass
 class _Frame:
     msg: Detection2DArray
+    #: When it arrived: wall seconds (``time.monotonic``), or in the causal lockstep the step's simulated time.
     received_wall: float
 
 
@@ -97,21 +100,24 @@ class GeolocatorNode:
         self.placed: Counter[str] = Counter()
         self.unplaced: Counter[str] = Counter()
 
-    def start(self) -> None:
+    def start(self, ls: Participant) -> None:
         p = self.p
-        self.pub = rospy.Publisher("~detections", DetectionArray, queue_size=50)
-        self.pub_status = rospy.Publisher("~status", GeolocatorStatus, queue_size=10)
-        self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0))
-        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
+        self.ls = ls
+        self.pub = ls.publisher("~detections", DetectionArray, queue_size=50)
+        self.pub_status = ls.publisher("~status", GeolocatorStatus, queue_size=10)
+        self.tf_buffer = ls.tf_buffer(cache_s=30.0)
         info = p.camera_info or f"/cameras/{self.cam}/color/camera_info"
-        rospy.Subscriber(info, CameraInfo, self.on_info, queue_size=5)
+        ls.subscribe(info, CameraInfo, self.on_info, queue_size=5)
         if p.depth:
-            rospy.Subscriber(p.depth, Image, self.on_depth, queue_size=5, buff_size=2**24)
+            ls.subscribe(p.depth, Image, self.on_depth, queue_size=5, buff_size=2**24)
         if p.elevation:
-            rospy.Subscriber(p.elevation, numpy_msg(GridLayers), self.on_layers, queue_size=1, buff_size=2**26)
+            ls.subscribe(p.elevation, numpy_msg(GridLayers), self.on_layers, queue_size=1, buff_size=2**26)
         topic = p.detections or f"/detections/{self.cam}/ground_truth"
-        rospy.Subscriber(topic, Detection2DArray, self.on_detections, queue_size=100)
-        threading.Thread(target=self._work, name="geolocator", daemon=True).start()
+        ls.subscribe(topic, Detection2DArray, self.on_detections, queue_size=100)
+        if ls.causal:
+            ls.on_step(lambda _step, now_s: self._work_step(now_s))
+        else:
+            threading.Thread(target=self._work, name="geolocator", daemon=True).start()
         surfaces = [s for s, on in (("depth", p.depth), ("elevation", p.elevation), ("terrain", self.terrain)) if on]
         rospy.loginfo(
             f"geolocator: {topic} ({p.detector}) on camera {self.cam}; surfaces: {', '.join(surfaces) or 'none'}"
@@ -152,7 +158,7 @@ class GeolocatorNode:
 
     def on_detections(self, msg: Detection2DArray) -> None:
         with self.lock:
-            self.frames.append(_Frame(msg, time.monotonic()))
+            self.frames.append(_Frame(msg, self.ls.now_s() if self.ls.causal else time.monotonic()))
             self.lock.notify()
 
     # ---- worker ------------------------------------------------------------------------------
@@ -163,19 +169,41 @@ class GeolocatorNode:
                 return img
         return None
 
-    def _ready(self, frame: _Frame) -> bool:
+    def _ready(self, frame: _Frame, now: float | None = None) -> bool:
+        """Its depth image is here, or cannot come any more (a newer one came), or it waited ``depth_wait_s``
+        (wall seconds; in the causal lockstep ``now`` is the step's simulated time)."""
         if not self.p.depth:
             return True
         stamp = frame.msg.header.stamp.to_nsec()
         if self._depth_for(stamp) is not None or self.newest_depth_ns > stamp + _STAMP_TOL_NS:
             return True
-        return time.monotonic() - frame.received_wall >= self.p.depth_wait_s
+        return (time.monotonic() if now is None else now) - frame.received_wall >= self.p.depth_wait_s
+
+    def _work_step(self, now_s: float) -> None:
+        """Causal lockstep: place the frames whose depth and pose are known at this step, in arrival order; a
+        frame waits (and the ones after it) while its pose may still come: ``~tf_timeout_s`` of simulated time
+        after its stamp. The same frames are placed at the same step in every run."""
+        while self.frames:
+            frame = self.frames[0]
+            if not self._ready(frame, now_s):
+                return
+            stamp = frame.msg.header.stamp
+            frame_id = frame.msg.header.frame_id or self.optical_frame
+            waiting = frame_id and frame.msg.detections and now_s - stamp.to_sec() < self.p.tf_timeout_s
+            if waiting and not self.tf_buffer.can_transform(self.p.map_frame, frame_id, stamp):
+                return  # its pose is not here yet
+            self.frames.popleft()
+            depth = self._depth_for(stamp.to_nsec()) if self.p.depth else None
+            try:
+                self._handle(frame, self.camera, self.optical_frame, depth, self.elevation)
+            except Exception as err:  # one bad frame must not stop the node
+                rospy.logerr(f"geolocator: frame at {stamp.to_sec():.3f} s failed: {type(err).__name__}: {err}")
 
     def _work(self) -> None:
         while not rospy.is_shutdown():
             with self.lock:
                 if not self.frames:
-                    self.lock.wait(timeout=1.0)  # woken by the next frame (a lockstep run's settle needs quiet)
+                    self.lock.wait(timeout=1.0)  # woken by the next frame
                     continue
                 if not self._ready(self.frames[0]):
                     self.lock.wait(timeout=0.05)  # its depth image may still come
@@ -192,8 +220,9 @@ class GeolocatorNode:
 
     def _pose(self, frame_id: str, stamp: rospy.Time, received_wall: float) -> CameraPose | None:
         """The camera's pose at ``stamp``, waited for at most ``~tf_timeout_s`` after the frame *arrived*
-        (:func:`uav_perception.ros.tf_wait.lookup_until`: a frame that waited in the queue does not wait again)."""
-        deadline = received_wall + self.p.tf_timeout_s
+        (:func:`uav_perception.ros.tf_wait.lookup_until`: a frame that waited in the queue does not wait again).
+        In the causal lockstep the step has decided already: it is in the buffer now or never."""
+        deadline = 0.0 if self.ls.causal else received_wall + self.p.tf_timeout_s
         tf, why = lookup_until(self.tf_buffer, self.p.map_frame, frame_id, stamp, deadline, stop=rospy.is_shutdown)
         if tf is None:
             rospy.logwarn_throttle(5.0, f"geolocator: no pose of {frame_id} at {stamp.to_sec():.3f} s: {why}")
@@ -278,15 +307,14 @@ class GeolocatorNode:
 
 
 def main() -> None:
-    run_node("geolocator", _run, errors=(PerceptionError,))
+    run_participant("geolocator", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(PerceptionError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(GeolocatorParams, "geolocator")
     terrain = load_dem(Path(params.terrain_dem).expanduser()) if params.terrain_dem else None
     if terrain is None and not params.elevation and not params.depth:
         msg = "geolocator: no surface to place boxes on: give ~depth, ~elevation or ~terrain_dem"
         raise PerceptionConfigError(msg)
     node = GeolocatorNode(params, terrain)
-    node.start()
-    rospy.spin()
+    node.start(ls)

@@ -33,6 +33,7 @@ from uav_sim_bridge.core.motion import ActorsConfig
 
 __all__ = [
     "LINK_ENDPOINTS",
+    "LOCKSTEP_PARTICIPANTS",
     "LOCKSTEP_WALL_FLOOR_S",
     "AutonomySpec",
     "AutopilotKind",
@@ -90,6 +91,27 @@ class Strategy(enum.Enum):
 #: seconds: a lockstep run goes several times faster than real time, so a process starved of CPU for half a
 #: wall second on a busy machine would otherwise read as seconds of silence. ``node_params`` overrides it.
 LOCKSTEP_WALL_FLOOR_S = 2.0
+
+
+#: The ROS nodes that can take part in the causal lockstep (docs/lockstep.md) besides the step master (the sim
+#: bridge); a run's participants are those of them it starts.
+LOCKSTEP_PARTICIPANTS = (
+    "robot_description",
+    "map_server",
+    "feature_evaluator",
+    "goal_selector",
+    "path_planner",
+    "waypoint_controller",
+    "autopilot_odometry",
+    "depth_estimator",
+    "depth_evaluator",
+    "degraded_detector",
+    "detector",
+    "geolocator",
+    "tracker",
+    "mission_manager",
+    "scorer",
+)
 
 
 class TimeMode(enum.Enum):
@@ -547,10 +569,16 @@ class TimeSpec:
     speed_factor: float = 1.0
     #: Lockstep: simulation seconds granted per step (one camera frame period).
     step_s: float = 0.1
-    #: Lockstep only: the step master waits until every process of the run is idle before it
-    #: publishes and before it grants (``uav_sim_bridge.shell.settle``), so two runs of the same
-    #: scenario give the same trajectory and metrics. Slower (no pipelining).
+    #: Lockstep only: the causal lockstep (docs/lockstep.md): every process on the control path reports when it
+    #: is done with a step and every message on a lockstep input is counted, so the same scenario and seed give
+    #: bit-identical runs whatever the machine's load, at close to plain lockstep's speed.
     deterministic: bool = False
+    #: Deterministic lockstep: a node's lookahead in steps, over its default (docs/lockstep.md): what it
+    #: publishes in step k is its consumers' input at step k + L. Keys are node names.
+    lookahead_steps: dict[str, int] = field(default_factory=dict)
+    #: Deterministic lockstep: wall seconds without progress after which the run is declared deadlocked and stops
+    #: (the watchdog never lets a step through).
+    watchdog_s: float = 120.0
 
     def __post_init__(self) -> None:
         if self.speed_factor <= 0 or self.step_s <= 0:
@@ -558,6 +586,19 @@ class TimeSpec:
             raise ValueError(msg)
         if self.deterministic and self.mode is not TimeMode.LOCKSTEP:
             msg = "deterministic: true needs mode: lockstep"
+            raise ValueError(msg)
+        unknown = sorted(set(self.lookahead_steps) - set(LOCKSTEP_PARTICIPANTS))
+        if unknown:
+            msg = f"lookahead_steps names unknown node(s) {unknown}; participants: {sorted(LOCKSTEP_PARTICIPANTS)}"
+            raise ValueError(msg)
+        bad = sorted(
+            n for n, v in self.lookahead_steps.items() if isinstance(v, bool) or not isinstance(v, int) or v < 1
+        )
+        if bad:
+            msg = f"lookahead_steps of {bad} must be whole numbers of steps >= 1"
+            raise ValueError(msg)
+        if not self.watchdog_s > 0:
+            msg = f"watchdog_s must be > 0, got {self.watchdog_s}"
             raise ValueError(msg)
 
 

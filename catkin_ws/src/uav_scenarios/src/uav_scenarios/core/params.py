@@ -93,10 +93,29 @@ def planner(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     return {"algorithm": scenario.autonomy.planner, "cruise_buffer_m": scenario.autonomy.cruise_buffer_m}
 
 
+def wall_floor_s(scenario: Scenario) -> float | None:
+    """The wall-clock floor under the MAVLink nodes' timeouts: none in free time (the default applies), 0 in
+    deterministic lockstep (simulated time only: every process keeps step, so silence is never starvation),
+    :data:`LOCKSTEP_WALL_FLOOR_S` in plain lockstep."""
+    if scenario.time.mode is not TimeMode.LOCKSTEP:
+        return None
+    return 0.0 if scenario.time.deterministic else LOCKSTEP_WALL_FLOOR_S
+
+
+def lockstep(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
+    """The ``/lockstep`` parameters (docs/lockstep.md); the launch file adds the participants it starts."""
+    return {
+        "causal": bool(scenario.time.deterministic),
+        "lookahead_steps": dict(scenario.time.lookahead_steps),
+        "watchdog_s": float(scenario.time.watchdog_s),
+    }
+
+
 def controller(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     out: dict[str, Any] = {"takeoff_height_m": scenario.autonomy.takeoff_alt_m}
-    if scenario.time.mode is TimeMode.LOCKSTEP:
-        out["wall_floor_s"] = LOCKSTEP_WALL_FLOOR_S
+    floor = wall_floor_s(scenario)
+    if floor is not None:
+        out["wall_floor_s"] = floor
     if scenario.search is not None:
         out["scripted_altitude_m"] = scenario.search.scripted_alt_m
     if ctx.battery_capacity_mah is not None:
@@ -207,8 +226,9 @@ def autopilot_odometry(scenario: Scenario, _ctx: RunContext) -> dict[str, Any]:
     overrides this.
     """
     out: dict[str, Any] = {"time_sync": "shared"}
-    if scenario.time.mode is TimeMode.LOCKSTEP:
-        out["wall_floor_s"] = LOCKSTEP_WALL_FLOOR_S
+    floor = wall_floor_s(scenario)
+    if floor is not None:
+        out["wall_floor_s"] = floor
     return out
 
 
@@ -279,6 +299,7 @@ NODE_PARAMS: dict[str, Callable[[Scenario, RunContext], dict[str, Any]]] = {
     "geolocator": geolocator,
     "degraded_detector": degraded_detector,
     "detector": detector,
+    "lockstep": lockstep,
 }
 
 

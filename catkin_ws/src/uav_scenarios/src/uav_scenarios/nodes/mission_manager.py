@@ -5,7 +5,7 @@ ROS interface:
 Subscribes:
     ``/uav/controller/state`` (uav_msgs/ControllerState), ``/uav/battery`` (sensor_msgs/BatteryState),
     ``/scenario/metrics`` (uav_msgs/RunMetrics: % mapped, collisions), ``/uav/sim_state`` (uav_msgs/SimState:
-    crashed), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the geolocated
+    crashed), ``/sim/collision`` (uav_msgs/Collision: one per contact, counted at once), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the geolocated
     detections ``/geolocator/detections`` (uav_msgs/DetectionArray: the scenario's detector's boxes placed in
     map; frames of ``perception.camera`` only; detections below ``perception.score_threshold`` or without a
     position are counted, and the latter reported in ``/scenario/status`` ``detections_unplaced``).
@@ -43,6 +43,11 @@ Parameters:
     ``required="true"`` so roslaunch ends the run). Any other private parameter stops the node (exit code 2).
 
 Decisions are :mod:`uav_scenarios.core.mission`.
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps; its service calls apply at the
+step boundary the protocol names, its scripted faults go out from the step (the autopilot's over a lockstep
+MAVLink client, the cameras' as calls to the bridge). Only the wall-clock guard (``stop.wall_timeout_s``) and the
+linger before shutting down read the wall clock.
 """
 
 from __future__ import annotations
@@ -59,10 +64,11 @@ from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Header, String
 
 from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
-from uav_msgs.msg import ControllerState, DetectionArray, FaultEvent, RunMetrics, ScenarioStatus, SimState
-from uav_msgs.srv import SetControllerState, SetControllerStateRequest
+from uav_msgs.msg import Collision, ControllerState, DetectionArray, FaultEvent, RunMetrics, ScenarioStatus, SimState
+from uav_msgs.srv import SetCameraFault, SetCameraFaultRequest, SetControllerState, SetControllerStateRequest
 from uav_scenarios.core.config import (
     GEOLOCATED_TOPIC,
     MissionKind,
@@ -87,12 +93,16 @@ from uav_scenarios.ros.camera_faults import CameraFaultCaller
 from uav_scenarios.ros.messages import status_msg
 from uav_scenarios.ros.params import MissionManagerParams
 from uav_scenarios.ros.records import detections_from_msg
-from uav_scenarios.shell.fault_link import FaultLink, FaultResult
+from uav_scenarios.shell.fault_link import FaultLink, FaultResult, StepFaultLink
 from uav_scenarios.shell.world_store import load_world
 
 FLYING = ("AUTONOMOUS", "SCRIPTED", "HOLD", "MANUAL")
 #: The node name of the scenario's ``rosbag record`` (scenario_common.launch).
 RECORDER = "/record"
+#: Steps between its inputs and when its outputs are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
+#: Simulated seconds between two resumes of a controller that yielded in the air.
+RESUME_INTERVAL_S = 3.0
 
 
 class MissionManager:
@@ -135,6 +145,7 @@ class MissionManager:
         self.battery_pct = math.nan
         self.mapped_pct = math.nan
         self.collisions = 0
+        self.contacts = 0  # /sim/collision messages
         self.crashed = False
         self.goal: tuple[float, float, float] | None = None
         self.found_at_s: float | None = None
@@ -146,7 +157,7 @@ class MissionManager:
         self.wait_for_recorder = False
         self.resumes = 0
         self.max_resumes = 10
-        self.last_resume_wall = -math.inf
+        self.last_resume_s = -math.inf
         self.rtf_window: deque[tuple[float, float]] = deque(maxlen=20)
         self.status_pub: rospy.Publisher | None = None
         self.target_pub: rospy.Publisher | None = None
@@ -154,27 +165,31 @@ class MissionManager:
         self.fault_link: FaultLink | None = None
         self.camera_faults: CameraFaultCaller | None = None
 
-    def start(self) -> None:
-        config_pub = rospy.Publisher("/scenario/config", String, queue_size=1, latch=True)
+    def start(self, ls: Participant) -> None:
+        self.ls = ls
+        config_pub = ls.publisher("/scenario/config", String, queue_size=1, latch=True)
         assert self.scenario.source is not None
         config_pub.publish(String(data=self.scenario.source.read_text()))
-        self.status_pub = rospy.Publisher("/scenario/status", ScenarioStatus, queue_size=10, latch=True)
-        self.target_pub = rospy.Publisher("/autonomy/target_point", PointStamped, queue_size=1, latch=True)
-        rospy.Subscriber("/uav/controller/state", ControllerState, self.on_controller, queue_size=10)
-        rospy.Subscriber("/uav/battery", BatteryState, self.on_battery, queue_size=10)
-        rospy.Subscriber("/scenario/metrics", RunMetrics, self.on_metrics, queue_size=5)
-        rospy.Subscriber("/uav/sim_state", SimState, self.on_sim_state, queue_size=10)
-        rospy.Subscriber("/autonomy/goal", PointStamped, self.on_goal, queue_size=5)
+        self.status_pub = ls.publisher("/scenario/status", ScenarioStatus, queue_size=10, latch=True)
+        self.target_pub = ls.publisher("/autonomy/target_point", PointStamped, queue_size=1, latch=True)
+        ls.subscribe("/uav/controller/state", ControllerState, self.on_controller, queue_size=10)
+        ls.subscribe("/uav/battery", BatteryState, self.on_battery, queue_size=10)
+        ls.subscribe("/scenario/metrics", RunMetrics, self.on_metrics, queue_size=5)
+        ls.subscribe("/uav/sim_state", SimState, self.on_sim_state, queue_size=10)
+        # collisions from the simulator itself (one message per contact), not through the scorer's metrics: the
+        # scorer may lag (a lookahead of 50 steps in the causal lockstep), a collision stop must not
+        ls.subscribe("/sim/collision", Collision, self.on_collision, queue_size=10)
+        ls.subscribe("/autonomy/goal", PointStamped, self.on_goal, queue_size=5)
         if self.gate is not None and self.scenario.search is not None:
-            rospy.Subscriber(GEOLOCATED_TOPIC, DetectionArray, self.on_detections, queue_size=20)
-        rospy.Timer(rospy.Duration(0.5), self.on_tick)
+            ls.subscribe(GEOLOCATED_TOPIC, DetectionArray, self.on_detections, queue_size=20)
+        ls.timer(0.5, self.on_tick, name="mission")
 
     def start_faults(self, autopilot_url: str, camera_fault_service: str) -> None:
         """Send the scenario's faults at their run times: the autopilot's over MAVLink (from a thread of the fault
         link's), the cameras' to the sim bridge (from a thread of the camera fault caller's)."""
         if not self.scenario.faults:
             return
-        self.fault_pub = rospy.Publisher("/scenario/faults", FaultEvent, queue_size=20, latch=True)
+        self.fault_pub = self.ls.publisher("/scenario/faults", FaultEvent, queue_size=20, latch=True)
         actions = fault_actions(self.scenario.faults)
         autopilot = [a for a in actions if not a.camera]
         cameras = [a for a in actions if a.camera]
@@ -182,7 +197,21 @@ class MissionManager:
         def elapsed() -> float | None:
             return None if self.start_sim_s is None else rospy.get_time() - self.start_sim_s
 
-        if autopilot:
+        if autopilot and self.ls.causal:
+            step_link = StepFaultLink(
+                autopilot_url,
+                FaultSchedule(autopilot),
+                elapsed_s=elapsed,
+                now_s=rospy.get_time,
+                on_result=self.on_fault_result,
+                lookahead_steps=self.ls.settings.lookahead_steps,
+                watchdog_s=self.ls.settings.watchdog_s,
+            )
+            step_link.start()
+            self.ls.around_step(before=step_link.before_step, after=step_link.after_step)
+            rospy.on_shutdown(step_link.stop)
+            rospy.loginfo(f"mission_manager: {len(autopilot)} scripted autopilot fault action(s), over {autopilot_url}")
+        elif autopilot:
             self.fault_link = FaultLink(
                 autopilot_url,
                 FaultSchedule(autopilot),
@@ -201,8 +230,17 @@ class MissionManager:
                 now_s=rospy.get_time,
                 on_result=self.on_fault_result,
             )
-            self.camera_faults.start()
-            rospy.on_shutdown(self.camera_faults.stop)
+            if self.ls.causal:
+                caller = self.camera_faults
+
+                def call(camera: str, failure_type: str) -> Any:
+                    request = SetCameraFaultRequest(camera=camera, type=failure_type)
+                    return self.ls.call(camera_fault_service, SetCameraFault, request, wait_s=60.0)
+
+                self.ls.on_step(lambda _step, _now: caller.send_due(call))
+            else:
+                self.camera_faults.start()
+                rospy.on_shutdown(self.camera_faults.stop)
             rospy.loginfo(f"mission_manager: {len(cameras)} camera fault action(s), to {camera_fault_service}")
 
     def on_fault_result(self, r: FaultResult) -> None:
@@ -242,6 +280,10 @@ class MissionManager:
         self.collisions = max(self.collisions, msg.collisions)
         if self.stop_reason is not None and '"final": true' in msg.summary_json:
             self.scorer_final = True
+
+    def on_collision(self, _msg: Collision) -> None:
+        self.contacts += 1
+        self.collisions = max(self.collisions, self.contacts)
 
     def on_sim_state(self, msg: SimState) -> None:
         self.crashed = self.crashed or msg.crashed
@@ -291,8 +333,7 @@ class MissionManager:
     def _call(self, request: SetControllerStateRequest) -> bool:
         service = f"{self.controller_ns}/set_state"
         try:
-            rospy.wait_for_service(service, timeout=2.0)
-            response = rospy.ServiceProxy(service, SetControllerState)(request)
+            response = self.ls.call(service, SetControllerState, request, wait_s=2.0)
         except (rospy.ROSException, rospy.ServiceException) as err:
             rospy.logwarn_throttle(10.0, f"mission_manager: {service} failed: {err}")
             return False
@@ -323,8 +364,7 @@ class MissionManager:
         assert self.person is not None
         self.hold_requested = self._call(SetControllerStateRequest(state="HOLD", points=[Point(*self.person)]))
 
-    def on_tick(self, _event: Any) -> None:
-        now = rospy.get_time()
+    def on_tick(self, now: float) -> None:
         if now <= 0:
             return
         if self.start_sim_s is None:
@@ -343,7 +383,7 @@ class MissionManager:
                 self.phase = flying_phase(self.scenario)
             if self.person is not None and not self.hold_requested:
                 self._request_hold()
-            self._resume_if_yielded(ctrl)
+            self._resume_if_yielded(ctrl, now)
             self.stop_reason = check_stop(
                 self.scenario.stop,
                 elapsed_s=now - self.start_sim_s,
@@ -402,15 +442,15 @@ class MissionManager:
             rospy.loginfo_throttle(10.0, f"mission_manager: rosbag record not yet connected: {unconnected[:3]}")
         return not unconnected
 
-    def _resume_if_yielded(self, ctrl: ControllerState | None) -> None:
+    def _resume_if_yielded(self, ctrl: ControllerState | None, now: float) -> None:
         if ctrl is None or not resume_needed(
             self.phase, ctrl.state, in_air=ctrl.in_air, link_ok=ctrl.link_ok, autopilot_mode=ctrl.autopilot_mode
         ):
             return
-        if self.resumes >= self.max_resumes or time.monotonic() - self.last_resume_wall < 3.0:
+        if self.resumes >= self.max_resumes or now - self.last_resume_s < RESUME_INTERVAL_S:
             return
         self.resumes += 1
-        self.last_resume_wall = time.monotonic()
+        self.last_resume_s = now
         rospy.logwarn(
             f"mission_manager: the controller yielded in the air ({ctrl.last_event!r}); "
             f"resuming the mission ({self.resumes}/{self.max_resumes})"
@@ -481,10 +521,10 @@ def launch_mismatch(
 
 
 def main() -> None:
-    run_node("mission_manager", _run, errors=(ScenarioError,))
+    run_participant("mission_manager", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(ScenarioError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(MissionManagerParams, "mission_manager")
     scenario = load_scenario(Path(params.scenario))
     problem = launch_mismatch(scenario, params.expect_mission, params.depth_source, params.pose_source, params.detector)
@@ -511,6 +551,5 @@ def _run() -> None:
             "them over MAVLink (scenario_common.launch sets it to the router's TCP server)"
         )
         raise ScenarioConfigError(msg)
-    node.start()
+    node.start(ls)
     node.start_faults(params.autopilot_url, params.camera_fault_service)
-    rospy.spin()

@@ -4,7 +4,7 @@ Used by the scenario launch files as ``<param name="/NODE/overrides" type="yaml"
 command="$(find uav_scenarios)/nodes/scenario_params $(arg scenario) NODE --run-dir ..."/>``
 so every node of a run takes its settings from the one scenario file. ``NODE`` may also be
 ``scenario`` (the whole parsed scenario), ``scripted`` (the controller's SCRIPTED request) or
-``settle`` (whether the bridge waits for the run to go idle at each step: ``time.deterministic``).
+``lockstep`` (the ``/lockstep`` parameters of the causal lockstep, docs/lockstep.md).
 
 Options: ``--run-dir DIR`` (the run folder), ``--world-cache-dir DIR`` (the bridge's world
 cache), ``--lockstep-role master|participant``. For search and rescue the person of
@@ -100,8 +100,6 @@ def main() -> None:
         scenario = load_scenario(args.scenario)
         if args.node == "scenario":
             data: Any = to_mapping(scenario)
-        elif args.node == "settle":
-            data = bool(scenario.time.deterministic)
         elif args.node == "scripted":
             cache = Path(args.world_cache_dir).expanduser() if args.world_cache_dir else None
             ground = load_world(scenario, cache).height_at if needs_terrain(scenario) else None

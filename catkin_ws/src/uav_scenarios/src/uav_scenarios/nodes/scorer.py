@@ -44,6 +44,14 @@ Parameters:
 Scoring itself is :class:`uav_scenarios.core.scoring.run.RunScorer`; the ground truth comes from
 :func:`uav_scenarios.shell.world_store.scene_truth` (surface voxels are computed in the background
 the first time, then cached on disk).
+
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 50 steps (the mission manager's ``mapped_pct``
+stop criterion reads its metrics, so it is in the loop, but up to 5 s of simulated time behind it costs the loop
+nothing: its scoring is the heaviest Python of a run, and comes in bursts).
+Every record it scores is a counted input, its timer fires from the step, the ground truth is loaded before the
+first step, and the map export is applied at the step boundary the protocol names: the time series and the
+metrics are the same in every run. Only the report's camera snapshots are taken from whatever frame comes
+first (pictures for the report, not metrics).
 """
 
 from __future__ import annotations
@@ -76,7 +84,8 @@ from uav_common.config import ConfigError
 from uav_common.detection_classes import load_detection_classes
 from uav_common.paths import config_file
 from uav_common.ros.arrays import MessageLayoutError, image_msg
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import (
     Collision,
@@ -93,7 +102,7 @@ from uav_msgs.msg import (
     ScenarioStatus,
     TrackArray,
 )
-from uav_msgs.srv import ExportVoxels
+from uav_msgs.srv import ExportVoxels, ExportVoxelsRequest
 from uav_scenarios.core.config import (
     ESTIMATE_STATUS_TOPIC,
     GEOLOCATED_TOPIC,
@@ -145,6 +154,8 @@ HOLD_S = 0.5
 TRACKING_PERIOD_S = 20.0
 #: Detector-camera images kept for cutting the gallery's crops (frames are scored HOLD_S after their stamp).
 GALLERY_IMAGES = 40
+#: Steps between its inputs and when its metrics are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 50
 
 
 def default_truth(scenario: Scenario) -> SceneTruth:
@@ -220,8 +231,8 @@ class ScorerNode:
         self.last_layers: GridLayers | None = None
         self.last_features: GridLayers | None = None
         self.image_subs: list[rospy.Subscriber] = []
-        self.pubs: dict[str, rospy.Publisher] = {}
-        self.metrics_pub: rospy.Publisher | None = None
+        self.pubs: dict[str, Any] = {}
+        self.metrics_pub: Any = None
         self.world_info: dict[str, Any] = {}
         self.truth_note = "loading the world"
         self._accuracy_busy = threading.Lock()
@@ -233,21 +244,25 @@ class ScorerNode:
         self._next_tracking_s = -math.inf
         self._next_accuracy_s = -math.inf
         self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
+        self._exports_made = 0
+        #: Causal lockstep: exports on their way, (step their answer is taken at, time, file, future).
+        self._exports: list[tuple[int, float, Path, Any]] = []
         self.versions = run_versions()
         self.map_input: dict[str, int] = {}  # the map server's cloud totals (its last ~insert_stats)
 
     # ---- wiring --------------------------------------------------------------------------
 
-    def start(self) -> None:
-        self.metrics_pub = rospy.Publisher("/scenario/metrics", RunMetrics, queue_size=5, latch=True)
-        self.pubs["layers"] = rospy.Publisher("/scenario/snapshot/layers", GridLayers, queue_size=10, latch=True)
-        self.pubs["features"] = rospy.Publisher("/scenario/snapshot/features", GridLayers, queue_size=10, latch=True)
+    def start(self, ls: Participant) -> None:
+        self.ls = ls
+        self.metrics_pub = ls.publisher("/scenario/metrics", RunMetrics, queue_size=5, latch=True)
+        self.pubs["layers"] = ls.publisher("/scenario/snapshot/layers", GridLayers, queue_size=10, latch=True)
+        self.pubs["features"] = ls.publisher("/scenario/snapshot/features", GridLayers, queue_size=10, latch=True)
         for cam in self.cameras:
             for kind in IMAGE_KINDS:
-                self.pubs[f"{cam}/{kind}"] = rospy.Publisher(
+                self.pubs[f"{cam}/{kind}"] = ls.publisher(
                     f"/scenario/snapshot/{cam}/{kind}", Image, queue_size=10, latch=True
                 )
-        sub = rospy.Subscriber
+        sub = ls.subscribe
         sub("/uav/ground_truth/odom", Odometry, self._feed(pose_from_odometry, "add_pose"), queue_size=QUEUE)
         if self.scenario.pose_source is PoseSource.AUTOPILOT:
             topic = estimate_topic(self.scenario)
@@ -261,7 +276,7 @@ class ScorerNode:
         sub("/autonomy/features", numpy_msg(GridLayers), self.on_features, queue_size=2, buff_size=2**26)
         sub("/detections/ground_truth", DetectionArray, self.on_truth_detections, queue_size=QUEUE)
         sub(GEOLOCATED_TOPIC, DetectionArray, self.on_detector, queue_size=QUEUE)
-        self.pubs["gallery"] = rospy.Publisher("/scenario/snapshot/gallery", Image, queue_size=1, latch=True)
+        self.pubs["gallery"] = ls.publisher("/scenario/snapshot/gallery", Image, queue_size=1, latch=True)
         if self.gallery_images is not None:
             sub(
                 f"/cameras/{self.detection_camera}/color/image_raw",
@@ -292,10 +307,17 @@ class ScorerNode:
         )
         sub("/scenario/status", ScenarioStatus, self.on_status, queue_size=QUEUE)
         sub(f"{self.map_server_ns}/insert_stats", MapInsertStats, self.on_insert_stats, queue_size=QUEUE)
-        sub("/clock", Clock, self.on_clock, queue_size=10)
-        rospy.Timer(rospy.Duration(1.0 / self.scenario.scoring.metrics_rate_hz), self.on_tick)
+        if ls.causal:
+            # The exports' answers at their step, the final summary at the first step past the stop (on_clock's
+            # rule), and the whole truth before the first step: a row must not depend on when a thread finished.
+            ls.on_step(lambda step, _now: self._take_exports(step))
+            ls.on_step(lambda _step, now: self._finish_due(now))
+            self._load_truth()
+        else:
+            sub("/clock", Clock, self.on_clock, queue_size=10)
+            threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
+        ls.timer(1.0 / self.scenario.scoring.metrics_rate_hz, self.on_tick, name="metrics")
         rospy.on_shutdown(self.finish)
-        threading.Thread(target=self._load_truth, name="scorer-truth", daemon=True).start()
         if self.run_dir is not None and not (self.run_dir / "scenario.yaml").exists():
             write_atomic(self.run_dir / "scenario.yaml", effective_yaml(self.scenario))
 
@@ -487,21 +509,23 @@ class ScorerNode:
             self._finish_at_s = t + 2 * HOLD_S
 
     def on_clock(self, msg: Clock) -> None:
+        self._finish_due(msg.clock.to_sec())
+
+    def _finish_due(self, now: float) -> None:
         at = self._finish_at_s
-        if at is None or self.finished or msg.clock.to_sec() < at:
+        if at is None or self.finished or now < at:
             return
         assert self.end_s is not None
         self.finish(at_s=self.end_s)
 
-    def on_tick(self, _event: rospy.timer.TimerEvent) -> None:
-        now = rospy.get_time()
+    def on_tick(self, now: float) -> None:
         if now <= 0 or self.finished or self._finish_lock.locked() or self.end_s is not None:
             return
         if now >= self._next_accuracy_s:
-            # In this callback, not in a thread: the value lands in the same row of every run (and in a
-            # deterministic run the simulation waits for the export).
+            # In this callback, not in a thread: the value lands in the same row of every run (in the causal
+            # lockstep it is started here and taken a lookahead later, in the same step of every run).
             self._next_accuracy_s = now + self.scenario.scoring.map_accuracy_period_s
-            self._map_accuracy(now, wait=True)
+            self._map_accuracy(now, wait=not self.ls.causal)
         scored_to = now - HOLD_S
         self._flush_scored(scored_to)
         tracking = now >= self._next_tracking_s
@@ -520,38 +544,74 @@ class ScorerNode:
     # ---- map accuracy ----------------------------------------------------------------------
 
     def _map_accuracy(self, t_s: float, *, wait: bool = False) -> None:
-        """Export the map's occupied voxels and compare them with the truth (off every lock but our own)."""
+        """Export the map's occupied voxels and compare them with the truth (off every lock but our own).
+
+        In the causal lockstep an export during the run is started here and taken ``L`` steps later
+        (:meth:`_take_exports`): the map server applies it at the boundary the protocol names, and a scorer with a
+        long lookahead would stand still until then. The final one (``wait``) is taken at once."""
+        if self.ls.causal and not wait:
+            self._start_export(t_s)
+            return
         if not self._accuracy_busy.acquire(blocking=wait):
             return  # the previous export is still running
         try:
-            truth = self.scorer.truth  # one truth for the keys and their columns (it is replaced once loaded)
-            truth_keys = truth.surface_keys
-            if truth_keys.size == 0:
-                return
+            self._take_exports(math.inf)  # any export still on its way comes first
             service = f"{self.map_server_ns}/export_occupied"
-            path = self._export_dir / "occupied.npy"
+            path = self._export_path()
             try:
-                rospy.wait_for_service(service, timeout=1.0)
-                resp = rospy.ServiceProxy(service, ExportVoxels)(str(path), self.scenario.map.resolution_m)
+                request = ExportVoxelsRequest(path=str(path), resolution_m=self.scenario.map.resolution_m)
+                resp = self.ls.call(service, ExportVoxels, request, wait_s=1.0)
             except (rospy.ROSException, rospy.ServiceException) as err:
                 rospy.logwarn_throttle(30.0, f"scorer: {service} unavailable ({err}); no map IoU yet")
                 return
-            if not resp.success:
-                rospy.logwarn_throttle(30.0, f"scorer: {service} failed: {resp.message}")
-                return
-            try:
-                cells = np.load(path)
-            except (OSError, ValueError) as err:
-                rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
-                return
-            keys = voxel_keys_from_indices(cells.reshape(-1, 3))
-            accuracy = voxel_accuracy(keys, truth_keys, truth.surface_columns)
-            with self.lock:
-                if not self.finished or wait:
-                    self.scorer.set_map_accuracy(t_s, accuracy)
-                    self.scorer.evaluate_trails(t_s, keys)
+            self._apply_export(t_s, path, resp, final=wait)
         finally:
             self._accuracy_busy.release()
+
+    def _export_path(self) -> Path:
+        self._exports_made += 1
+        return self._export_dir / f"occupied_{self._exports_made}.npy"
+
+    def _start_export(self, t_s: float) -> None:
+        if self.scorer.truth.surface_keys.size == 0:
+            return
+        path = self._export_path()
+        request = ExportVoxelsRequest(path=str(path), resolution_m=self.scenario.map.resolution_m)
+        due, future = self.ls.call_later(f"{self.map_server_ns}/export_occupied", ExportVoxels, request, wait_s=1.0)
+        self._exports.append((due, t_s, path, future))
+
+    def _take_exports(self, step: float) -> None:
+        """Causal lockstep: the exports due by ``step`` (their answers are there: the map server applied them at
+        the boundary the protocol names), in the order they were started."""
+        while self._exports and self._exports[0][0] <= step:
+            _due, t_s, path, future = self._exports.pop(0)
+            try:
+                resp = future.result()
+            except (rospy.ROSException, rospy.ServiceException) as err:
+                rospy.logwarn_throttle(30.0, f"scorer: {self.map_server_ns}/export_occupied failed ({err}); no map IoU")
+                continue
+            self._apply_export(t_s, path, resp, final=False)
+
+    def _apply_export(self, t_s: float, path: Path, resp: Any, *, final: bool) -> None:
+        truth = self.scorer.truth  # one truth for the keys and their columns (it is replaced once loaded)
+        truth_keys = truth.surface_keys
+        if truth_keys.size == 0:
+            return
+        if not resp.success:
+            rospy.logwarn_throttle(30.0, f"scorer: {self.map_server_ns}/export_occupied failed: {resp.message}")
+            return
+        try:
+            cells = np.load(path)
+        except (OSError, ValueError) as err:
+            rospy.logwarn_throttle(30.0, f"scorer: cannot read the exported voxels {path}: {err}")
+            return
+        path.unlink(missing_ok=True)
+        keys = voxel_keys_from_indices(cells.reshape(-1, 3))
+        accuracy = voxel_accuracy(keys, truth_keys, truth.surface_columns)
+        with self.lock:
+            if not self.finished or final:
+                self.scorer.set_map_accuracy(t_s, accuracy)
+                self.scorer.evaluate_trails(t_s, keys)
 
     # ---- output --------------------------------------------------------------------------
 
@@ -627,7 +687,10 @@ class ScorerNode:
                     sub.unregister()
                     self.pubs[key].publish(msg)
 
-                holder["sub"] = rospy.Subscriber(topic, Image, once, queue_size=1, buff_size=2**24)
+                # In the causal lockstep the topic may be a counted input of this node too: rospy shares one queue
+                # per topic in a node, so this must not bound it (queue_size None keeps it as it is).
+                queue = None if self.ls.causal else 1
+                holder["sub"] = rospy.Subscriber(topic, Image, once, queue_size=queue, buff_size=2**24)
                 self.image_subs.append(holder["sub"])
 
     def _publish_grids(self) -> None:
@@ -656,10 +719,10 @@ class ScorerNode:
 
 
 def main() -> None:
-    run_node("scorer", _run, errors=(ScenarioError,))
+    run_participant("scorer", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(ScenarioError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(ScorerParams, "scorer")
     scenario = load_scenario(Path(params.scenario))
     run_dir = Path(params.run_dir) if params.run_dir else None
@@ -681,5 +744,4 @@ def _run() -> None:
         world_cache_dir=Path(params.world_cache_dir).expanduser() if params.world_cache_dir else None,
         map_server_ns=params.map_server,
     )
-    node.start()
-    rospy.spin()
+    node.start(ls)

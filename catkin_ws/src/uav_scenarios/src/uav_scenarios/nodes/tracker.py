@@ -19,16 +19,19 @@ Parameters:
     Any other private parameter stops the node (exit code 2).
 
 The tracker never reads ground-truth ids: identities are its own (core: ``tracking.PositionTracker``).
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 2 steps.
 """
 
 from __future__ import annotations
 
 import threading
 from collections import deque
+from typing import Any
 
 import rospy
 
-from uav_common.ros.node import run_node
+from uav_common.ros.lockstep import Participant
+from uav_common.ros.node import run_participant
 from uav_common.ros.params import node_params
 from uav_msgs.msg import DetectionArray, ScenarioStatus, TrackArray
 from uav_scenarios.core.tracking import PositionTracker, TrackerConfig
@@ -39,21 +42,23 @@ from uav_scenarios.ros.records import detections_from_msg
 
 #: Frames kept while the run's start is unknown (a frame may arrive just before the first status).
 EARLY_FRAMES = 50
+#: Steps between its inputs and when its tracks are consumed, in the causal lockstep (docs/lockstep.md).
+LOOKAHEAD_STEPS = 2
 
 
 class TrackerNode:
     def __init__(self, camera: str, config: TrackerConfig) -> None:
         self.camera = camera
         self.tracker = PositionTracker(config)
-        self.pub: rospy.Publisher | None = None
+        self.pub: Any = None
         self.run_start_s: float | None = None
         self.lock = threading.Lock()
         self.early: deque[DetectionArray] = deque(maxlen=EARLY_FRAMES)
 
-    def start(self, detections_topic: str) -> None:
-        self.pub = rospy.Publisher("/scenario/tracks", TrackArray, queue_size=200)
-        rospy.Subscriber(detections_topic, DetectionArray, self.on_detections, queue_size=200)
-        rospy.Subscriber("/scenario/status", ScenarioStatus, self.on_status, queue_size=10)
+    def start(self, ls: Participant, detections_topic: str) -> None:
+        self.pub = ls.publisher("/scenario/tracks", TrackArray, queue_size=200)
+        ls.subscribe(detections_topic, DetectionArray, self.on_detections, queue_size=200)
+        ls.subscribe("/scenario/status", ScenarioStatus, self.on_status, queue_size=10)
 
     def on_status(self, msg: ScenarioStatus) -> None:
         with self.lock:
@@ -104,10 +109,10 @@ class TrackerNode:
 
 
 def main() -> None:
-    run_node("tracker", _run, errors=(ScenarioError,))
+    run_participant("tracker", _build, lookahead_steps=LOOKAHEAD_STEPS, errors=(ScenarioError,))
 
 
-def _run() -> None:
+def _build(ls: Participant) -> None:
     params = node_params(TrackerParams, "tracker")
     try:
         config = TrackerConfig(
@@ -117,5 +122,4 @@ def _run() -> None:
         msg = f"tracker: bad parameter: {err}"
         raise ScenarioConfigError(msg) from err
     node = TrackerNode(params.camera, config)
-    node.start(params.detections)
-    rospy.spin()
+    node.start(ls, params.detections)

@@ -8,7 +8,9 @@ simulation time it applies after, or ``DENIED`` and why) as a :class:`~uav_scena
 a bridge that never offers the service makes every action ``NOT_SENT``, a call that fails ``NO_ANSWER``.
 
 Time: the schedule is on ROS time (simulated seconds); the bridge applies a fault from the next state it
-processes, so in lockstep a fault lands within a step or two of its time (its ``answered_s`` says when).
+processes, so in lockstep a fault lands within a step or two of its time (its ``answered_s`` says when). In the
+causal lockstep there is no thread: the mission manager calls :meth:`CameraFaultCaller.send_due` from its step,
+and the call is applied at the step boundary the protocol names (docs/lockstep.md), the same in every run.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import rospy
 
@@ -63,6 +66,21 @@ class CameraFaultCaller:
 
     def start(self) -> None:
         self._thread.start()
+
+    def send_due(self, call: Callable[[str, Any], Any]) -> None:
+        """Causal lockstep: send the actions due at the run's elapsed time now, from the caller's step, through
+        ``call(camera, type)`` (the participant's service call, which names the step boundary)."""
+        elapsed = self.elapsed_s()
+        if elapsed is None:
+            return
+        for action in self.schedule.due(elapsed):
+            sent_s = self.now_s()
+            try:
+                resp = call(action.camera, action.failure_type)
+            except (rospy.ServiceException, rospy.ROSException) as err:
+                self.on_result(FaultResult(action, sent_s, "NO_ANSWER", f"{self.service}: {err}"))
+                continue
+            self.on_result(FaultResult(action, sent_s, str(resp.result), str(resp.detail), float(resp.applied_s)))
 
     def stop(self) -> None:
         self._stop.set()

@@ -42,24 +42,23 @@ Parameters:
     ~robot_description (str, default: the project's config/robot.yaml): the camera mounts (extrinsics) come
         from this file, the one a real airframe edits; config/sim_bridge.yaml holds the intrinsics only.
     ~publish_pose_tf, ~publish_camera_tf (bool, default true): see /tf and /tf_static above.
-    ~settle (bool, default false), ~settle_root_pid (int, default: our parent, i.e. roslaunch),
-    ~settle_timeout_s (float, 10): lockstep master only: before publishing a state's /clock, before
-    publishing the rest of it and before granting the next step, wait until every process of the
-    run is idle (uav_sim_bridge.shell.settle), so the run does not depend on scheduling (determinism).
-    ~settle_wait_nodes (list of node names, default []): with ~settle, the first grant waits until
-    these nodes are registered and idle (their timers then all start at simulation time 0).
+    Causal lockstep (docs/lockstep.md): with ``/lockstep/causal`` true the bridge, as lockstep master, is the step
+    master of the run: it serves ``/lockstep/join``, starts once every node of ``/lockstep/participants`` has joined
+    and the graph is connected, grants step k + 1 only once every participant is done with step k + 1 - L, counts
+    every message it publishes and ends each step with ``/lockstep/tick``. Its services apply requests at the
+    step boundary the caller names.
     Sets ~world_hash, ~world_name and ~world_dir (cache folder with objects.json and world.ply).
     Any other private parameter stops the node (exit code 2, docs/architecture.md).
 
 Threading: every GL call and all publishing of sensor data happen in the main loop's
 thread; the service callback only queues a request and waits for the loop to apply it.
+
+Publishers: in causal lockstep every topic but ``/clock`` is counted and never drops (an unbounded queue).
 """
 
 from __future__ import annotations
 
 import math
-import os
-import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -67,7 +66,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rosgraph
 import rospy
 import tf2_ros
 from nav_msgs.msg import Odometry
@@ -80,11 +78,12 @@ from visualization_msgs.msg import Marker
 from uav_common.config import ConfigError, config_errors_as, deep_merge, load_yaml_mapping
 from uav_common.detection_classes import DetectionClasses, load_detection_classes
 from uav_common.geo import GeoPoint
+from uav_common.lockstep.protocol import BoundaryQueue
 from uav_common.paths import config_file
 from uav_common.pointcloud import DepthImagePacker
 from uav_common.robot import load_robot_description
 from uav_common.ros.arrays import depth_cloud_msg, image_msg
-from uav_common.ros.graph import bus_info_over_xmlrpc, node_uri_lookup, unconnected_subscriptions
+from uav_common.ros.lockstep import APPLY_AFTER_HEADER, StepMaster, causal_enabled
 from uav_common.ros.node import run_node
 from uav_common.ros.params import node_params
 from uav_msgs.msg import Collision, DetectionArray, ObjectStateArray, SimState
@@ -106,7 +105,6 @@ from uav_sim_bridge.engine import BridgeEngine, CameraOutput, StepOutput
 from uav_sim_bridge.errors import CameraFaultError, SimBridgeConfigError, SimBridgeError
 from uav_sim_bridge.render import Renderer
 from uav_sim_bridge.ros import conversions as conv
-from uav_sim_bridge.shell.settle import Settle
 from uav_sim_bridge.shell.simlink import SIM_STEP, LinkCounters, SimLinkClient, SimLinkTracker
 from uav_sim_bridge.shell.world_io import export_mesh, export_objects_json
 from uav_sim_bridge.shell.world_store import cache_slot, load_or_generate
@@ -140,10 +138,6 @@ class BridgeParams:
     sim_port: int | str = ""
     local_port: int | str = ""
     lockstep_role: str = ""
-    settle: bool = False
-    settle_root_pid: int = 0
-    settle_timeout_s: float = 10.0
-    settle_wait_nodes: tuple[str, ...] = ()
     # Written by the node itself (read by the scorer and the depth evaluator); present on a respawn.
     world_hash: str = ""
     world_name: str = ""
@@ -155,9 +149,6 @@ class BridgeParams:
             if isinstance(value, str) and value != "":
                 msg = f"~{name} must be a port number or empty (the file's), got {value!r}"
                 raise ValueError(msg)
-        if not self.settle_timeout_s > 0.0:
-            msg = f"~settle_timeout_s must be > 0, got {self.settle_timeout_s}"
-            raise ValueError(msg)
 
 
 def load_node_config(params: BridgeParams) -> SimBridgeConfig:
@@ -222,18 +213,20 @@ def _nested(keys: tuple[str, ...], value: Any) -> dict[str, Any]:
 
 @dataclass
 class _CameraPubs:
-    color: rospy.Publisher
-    color_info: rospy.Publisher
-    depth: rospy.Publisher
-    depth_info: rospy.Publisher
-    instance: rospy.Publisher
-    klass: rospy.Publisher
-    points: rospy.Publisher
+    """One camera's publishers (rospy's, or the step master's counted ones: the same interface)."""
 
-    def all(self) -> list[rospy.Publisher]:
+    color: Any
+    color_info: Any
+    depth: Any
+    depth_info: Any
+    instance: Any
+    klass: Any
+    points: Any
+
+    def all(self) -> list[Any]:
         return [self.color, self.color_info, self.depth, self.depth_info, self.instance, self.klass, self.points]
 
-    def pixels(self) -> list[rospy.Publisher]:
+    def pixels(self) -> list[Any]:
         """The topics that need the camera rendered (camera_info does not: it goes out with detections too)."""
         return [self.color, self.depth, self.instance, self.klass, self.points]
 
@@ -243,6 +236,8 @@ class _MoveRequest:
     req: SetObjectPoseRequest
     done: threading.Event
     response: SetObjectPoseResponse | None = None
+    abandoned: bool = False
+    lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 @dataclass
@@ -255,8 +250,9 @@ class _FaultRequest:
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
-#: How long (wall seconds) ~set_camera_fault waits for the main loop (a settled lockstep loop can be slow).
-_FAULT_ANSWER_S = 30.0
+#: How long (wall seconds) a service waits for the main loop to apply its request (free or plain lockstep time;
+#: in causal lockstep the request waits for its step boundary, however long the run takes to get there).
+_ANSWER_S = 30.0
 
 
 class SimBridgeNode:
@@ -310,11 +306,27 @@ class SimBridgeNode:
         )
         self.tracker = SimLinkTracker(sitl_system_id=1, counters=self.counters)
         rospy.loginfo("sim link: local UDP %d -> %s:%d", self.link.local_port, sl.host, sl.port)
+        # Causal lockstep (docs/lockstep.md): the bridge is the run's step master.
+        self.master: StepMaster | None = None
+        if causal_enabled():
+            if cfg.lockstep.role != LockstepRole.MASTER:
+                msg = (
+                    f"/lockstep/causal is true but lockstep.role is {cfg.lockstep.role!r}: the causal lockstep needs "
+                    "the bridge as its step master (lockstep.role: master)"
+                )
+                raise SimBridgeConfigError(msg)
+            expected = rospy.get_param("/lockstep/participants", []) or []
+            if not isinstance(expected, list) or not all(isinstance(n, str) for n in expected):
+                msg = f"/lockstep/participants must be a list of node names, got {expected!r}"
+                raise SimBridgeConfigError(msg)
+            self.master = StepMaster(step_s=0.0, expected=expected)
+            rospy.loginfo("lockstep: causal; the bridge is the step master of %d participants", len(expected))
         self._make_publishers()
         self.publish_pose_tf = params.publish_pose_tf
         if params.publish_camera_tf:
             self._publish_static()
-        self._requests: queue.Queue[_MoveRequest | _FaultRequest] = queue.Queue()
+        self._requests: BoundaryQueue[_MoveRequest | _FaultRequest] = BoundaryQueue()
+        self._requests_lock = threading.Lock()
         self._service = rospy.Service("~set_object_pose", SetObjectPose, self._on_set_object_pose)
         self._fault_service = rospy.Service("~set_camera_fault", SetCameraFault, self._on_set_camera_fault)
         rospy.set_param("~world_hash", self.world.hash)
@@ -338,47 +350,51 @@ class SimBridgeNode:
         self.frames = 0
         self._packers: dict[str, DepthImagePacker] = {}  # per camera: reused cloud buffers
         self._last_bad = 0
-        # Determinism: optional settle waits, lockstep master only.
-        self._settle: Settle | None = None
-        self._settle_nodes: list[str] = []
-        self._settle_started = False
-        if params.settle and cfg.lockstep.role == LockstepRole.MASTER:
-            root = params.settle_root_pid or os.getppid()
-            self._settle = Settle(root, timeout_s=params.settle_timeout_s)
-            self._settle_nodes = list(params.settle_wait_nodes)
-            rospy.loginfo("lockstep: settling (waiting for every process under pid %d to go idle) at each step", root)
+        self._last_state_t: float | None = None
+        self._frozen_listeners: dict[str, bool] | None = None  # causal lockstep: see _listened
 
     # ------------------------------------------------------------------ setup
+    def _pub(self, topic: str, msg_class: Any, queue_size: int, *, latch: bool = False) -> Any:
+        """A publisher: counted and lossless in causal lockstep (the master's), plain rospy otherwise."""
+        if self.master is not None:
+            return self.master.publisher(topic, msg_class, latch=latch)
+        return rospy.Publisher(topic, msg_class, queue_size=queue_size, latch=latch)
+
     def _make_publishers(self) -> None:
-        self.pub_clock = rospy.Publisher("/clock", Clock, queue_size=10)
-        self.pub_odom = rospy.Publisher("/uav/ground_truth/odom", Odometry, queue_size=10)
-        self.pub_state = rospy.Publisher("/uav/sim_state", SimState, queue_size=10)
-        self.pub_det = rospy.Publisher(self.cfg.detections.topic, DetectionArray, queue_size=10)
+        pub = self._pub
+        self.pub_clock = rospy.Publisher("/clock", Clock, queue_size=10)  # never a lockstep input: not counted
+        self.pub_odom = pub("/uav/ground_truth/odom", Odometry, 10)
+        self.pub_state = pub("/uav/sim_state", SimState, 10)
+        self.pub_det = pub(self.cfg.detections.topic, DetectionArray, 10)
         # The ground truth as one more box-only detector (vision_msgs), per detection camera.
         self.pub_boxes = {
-            cam: rospy.Publisher(self.cfg.detections.boxes_topic.format(camera=cam), Detection2DArray, queue_size=10)
+            cam: pub(self.cfg.detections.boxes_topic.format(camera=cam), Detection2DArray, 10)
             for cam in self.cfg.detections.cameras
             if cam in self.engine.cameras
         }
-        self.pub_collision = rospy.Publisher("/sim/collision", Collision, queue_size=10, latch=True)
-        self.pub_objects = rospy.Publisher("/sim/object_states", ObjectStateArray, queue_size=10)
-        self.tf = tf2_ros.TransformBroadcaster()
-        self.tf_static = tf2_ros.StaticTransformBroadcaster()
+        self.pub_collision = pub("/sim/collision", Collision, 10, latch=True)
+        self.pub_objects = pub("/sim/object_states", ObjectStateArray, 10)
+        if self.master is not None:
+            self.tf: Any = self.master.tf_broadcaster()
+            self.tf_static: Any = self.master.tf_broadcaster(static=True)
+        else:
+            self.tf = tf2_ros.TransformBroadcaster()
+            self.tf_static = tf2_ros.StaticTransformBroadcaster()
         self.cam_pubs: dict[str, _CameraPubs] = {}
         q = self.cfg.publish.queue_size  # a recorder must not lose frames: see PublishConfig.queue_size
         for name in self.engine.cameras:
             ns = f"/cameras/{name}"
             self.cam_pubs[name] = _CameraPubs(
-                color=rospy.Publisher(f"{ns}/color/image_raw", Image, queue_size=q),
-                color_info=rospy.Publisher(f"{ns}/color/camera_info", CameraInfo, queue_size=q),
-                depth=rospy.Publisher(f"{ns}/depth/image_raw", Image, queue_size=q),
-                depth_info=rospy.Publisher(f"{ns}/depth/camera_info", CameraInfo, queue_size=q),
-                instance=rospy.Publisher(f"{ns}/instance/image_raw", Image, queue_size=q),
-                klass=rospy.Publisher(f"{ns}/class/image_color", Image, queue_size=q),
-                points=rospy.Publisher(f"{ns}/points", PointCloud2, queue_size=q),
+                color=pub(f"{ns}/color/image_raw", Image, q),
+                color_info=pub(f"{ns}/color/camera_info", CameraInfo, q),
+                depth=pub(f"{ns}/depth/image_raw", Image, q),
+                depth_info=pub(f"{ns}/depth/camera_info", CameraInfo, q),
+                instance=pub(f"{ns}/instance/image_raw", Image, q),
+                klass=pub(f"{ns}/class/image_color", Image, q),
+                points=pub(f"{ns}/points", PointCloud2, q),
             )
         if self.cfg.publish.world_mesh_marker:
-            self.pub_mesh = rospy.Publisher("/sim/world_mesh", Marker, queue_size=1, latch=True)
+            self.pub_mesh = pub("/sim/world_mesh", Marker, 1, latch=True)
             self._publish_mesh_marker()
 
     def _publish_static(self) -> None:
@@ -411,29 +427,48 @@ class SimBridgeNode:
         self.pub_mesh.publish(m)
 
     # ------------------------------------------------------------------ service (any thread)
+    def _boundary(self, req: Any) -> int:
+        """The step boundary a request applies at: the caller's (causal lockstep, docs/lockstep.md), else the next
+        one (free or plain lockstep time: -1, at once)."""
+        if self.master is None:
+            return -1
+        header = getattr(req, "_connection_header", None) or {}
+        raw = header.get(APPLY_AFTER_HEADER)
+        return self.master.step if raw is None else int(raw)
+
+    def _queue(self, item: _MoveRequest | _FaultRequest) -> None:
+        with self._requests_lock:
+            self._requests.put(self._boundary(item.req), item)
+
+    def _wait_answer(self, item: _MoveRequest | _FaultRequest) -> bool:
+        """Wait for the loop to apply ``item``: at its boundary in causal lockstep (as long as the run takes to
+        get there), within :data:`_ANSWER_S` otherwise. False (and never applied): too late."""
+        while not item.done.wait(1.0 if self.master is not None else _ANSWER_S):
+            if self.master is None or rospy.is_shutdown():
+                break
+        with item.lock:
+            if item.response is None:
+                item.abandoned = True
+                return False
+        return True
+
     def _on_set_object_pose(self, req: SetObjectPoseRequest) -> SetObjectPoseResponse:
         item = _MoveRequest(req, threading.Event())
-        self._requests.put(item)
-        if not item.done.wait(5.0) or item.response is None:
-            return SetObjectPoseResponse(success=False, message="the bridge loop did not answer within 5 s")
+        self._queue(item)
+        if not self._wait_answer(item):
+            text = f"the bridge loop did not answer within {_ANSWER_S:.0f} s"
+            return SetObjectPoseResponse(success=False, message=text)
+        assert item.response is not None
         return item.response
 
     def _on_set_camera_fault(self, req: SetCameraFaultRequest) -> SetCameraFaultResponse:
         item = _FaultRequest(req, threading.Event())
-        self._requests.put(item)
-        item.done.wait(_FAULT_ANSWER_S)
-        with item.lock:
-            if item.response is None:  # too late: never applied, and the loop will not apply it now
-                item.abandoned = True
-                detail = f"the bridge loop did not take it within {_FAULT_ANSWER_S:.0f} s: not applied"
-                return SetCameraFaultResponse(result="DENIED", detail=detail, applied_s=math.nan)
-            return item.response
-
-    def _apply_camera_fault(self, item: _FaultRequest) -> None:
-        with item.lock:
-            if not item.abandoned:
-                self._apply_camera_fault_locked(item)
-        item.done.set()
+        self._queue(item)
+        if not self._wait_answer(item):
+            detail = f"the bridge loop did not take it within {_ANSWER_S:.0f} s: not applied"
+            return SetCameraFaultResponse(result="DENIED", detail=detail, applied_s=math.nan)
+        assert item.response is not None
+        return item.response
 
     def _apply_camera_fault_locked(self, item: _FaultRequest) -> None:
         r = item.req
@@ -448,31 +483,41 @@ class SimBridgeNode:
             item.response = SetCameraFaultResponse(result="ACCEPTED", detail="", applied_s=applied_s)
 
     def _drain_requests(self) -> None:
-        while True:
-            try:
-                item = self._requests.get_nowait()
-            except queue.Empty:
-                return
-            if isinstance(item, _FaultRequest):
-                self._apply_camera_fault(item)
-                continue
-            r = item.req
-            key: str | int = int(r.instance_id) if r.instance_id else str(r.name)
-            try:
-                obj = self.engine.move_object(key, r.position.x, r.position.y, r.position.z, r.yaw_rad)
-                item.response = SetObjectPoseResponse(
-                    success=True, message=f"moved {obj.name} to {obj.pose.position_m}", instance_id=obj.instance_id
-                )
-            except (KeyError, ValueError) as err:
-                item.response = SetObjectPoseResponse(success=False, message=str(err).strip("'\""))
+        """Apply the service requests due now: all of them, or in causal lockstep those whose boundary has come
+        (the master has published the step they apply after)."""
+        finished = self.master.step if self.master is not None else 0
+        with self._requests_lock:
+            due = self._requests.due(finished)
+        for item in due:
+            with item.lock:
+                if item.abandoned:
+                    continue
+                if isinstance(item, _FaultRequest):
+                    self._apply_camera_fault_locked(item)
+                else:
+                    self._apply_move_locked(item)
             item.done.set()
+
+    def _apply_move_locked(self, item: _MoveRequest) -> None:
+        r = item.req
+        key: str | int = int(r.instance_id) if r.instance_id else str(r.name)
+        try:
+            obj = self.engine.move_object(key, r.position.x, r.position.y, r.position.z, r.yaw_rad)
+            item.response = SetObjectPoseResponse(
+                success=True, message=f"moved {obj.name} to {obj.pose.position_m}", instance_id=obj.instance_id
+            )
+        except (KeyError, ValueError) as err:
+            item.response = SetObjectPoseResponse(success=False, message=str(err).strip("'\""))
 
     # ------------------------------------------------------------------ main loop
     def spin(self) -> None:
         role = self.cfg.lockstep.role
         rospy.loginfo("lockstep role: %s", role)
         while not rospy.is_shutdown():
-            msgs = self.link.receive(0.02)
+            wake = self.master.wake_fd if self.master is not None else None
+            msgs = self.link.receive(0.02, wake_fd=wake)
+            if self.master is not None:
+                self.master.drain_wake()
             for m in msgs:
                 self.tracker.update(m)
             self._drain_requests()
@@ -489,7 +534,10 @@ class SimBridgeNode:
                 if command == SIM_STEP:
                     self._on_grant_ack(result)
             if role == LockstepRole.MASTER and not self._lockstep_denied:
-                self._maybe_grant(now)
+                if self.master is not None:
+                    self._maybe_grant_causal(now)
+                else:
+                    self._maybe_grant(now)
             self._warn_if_unwell(now)
         rospy.loginfo(
             "sim link: rx %d datagrams (%d bad, %d foreign, %d invalid states), tx %d (%d errors); "
@@ -503,15 +551,8 @@ class SimBridgeNode:
             self.frames,
             self.grants,
         )
-        if self._settle is not None:
-            st = self._settle.stats
-            rospy.loginfo(
-                "lockstep settle: %d waits, %.1f s in total (max %.2f s), %d timeouts",
-                st.waits,
-                st.total_wait_s,
-                st.max_wait_s,
-                st.timeouts,
-            )
+        if self.master is not None:
+            rospy.loginfo("lockstep: %s", self.master.summary())
 
     def _on_grant_ack(self, result: int) -> None:
         self._awaiting_ack = False
@@ -529,12 +570,6 @@ class SimBridgeNode:
             return  # nothing heard from the SITL yet
         lk = self.cfg.lockstep
         if self._awaiting_ack:
-            if self._settle is not None:
-                # Determinism: a late ACK means a busy SITL, not a lost grant; granting again
-                # would run extra steps. Wait (and say so) instead.
-                if now - self._grant_sent_at > 10.0 * lk.grant_timeout_s:
-                    rospy.logwarn_throttle(10.0, "lockstep: still waiting for the SITL's COMMAND_ACK for SIM_STEP")
-                return
             if now - self._grant_sent_at > lk.grant_timeout_s:
                 rospy.logwarn_throttle(
                     5.0, "lockstep: no COMMAND_ACK for SIM_STEP within %.1f s; granting again", lk.grant_timeout_s
@@ -555,81 +590,44 @@ class SimBridgeNode:
                 )
         self._send_grant(now)
 
-    def _settle_first_grant(self) -> None:
-        """Determinism: before simulation time starts, every listed node is up and idle."""
-        assert self._settle is not None
-        master = rosgraph.Master(rospy.get_name())
-        deadline = time.monotonic() + 120.0
-        missing = list(self._settle_nodes)
-        while missing and time.monotonic() < deadline and not rospy.is_shutdown():
-            still = []
-            for name in missing:
-                try:
-                    master.lookupNode(name)
-                except (rosgraph.MasterError, OSError):
-                    still.append(name)
-            missing = still
-            if missing:
-                time.sleep(0.1)
-        if missing:
-            rospy.logwarn("lockstep settle: nodes %s never registered; starting anyway", missing)
-        unconnected = self._wait_connected(master, deadline)
-        if unconnected:
-            rospy.logwarn("lockstep settle: subscriptions still not connected: %s; starting anyway", unconnected[:5])
-        self._settle.wait(rospy.is_shutdown)
-        self._settle_started = True
+    def _maybe_grant_causal(self, now: float) -> None:
+        """Causal lockstep: grant step k + 1 once every participant is done with step k + 1 - L (docs/lockstep.md).
 
-    def _wait_connected(self, master: Any, deadline: float) -> list[str]:
-        """Until every subscription of the listed nodes (and ours) is connected to every publisher of its topic,
-        and the graph has not changed for a second (the nodes have finished setting up, timers included).
+        A late COMMAND_ACK means a busy SITL, not a lost grant: granting again would run extra steps, so it waits
+        (and says so). Nothing here lets a step through on a timeout.
 
-        A subscriber that connects after simulation time has started misses the first messages, and a
-        timer created late has another phase, at moments that depend on scheduling; so the first grant
-        waits for the whole graph.
+        Raises:
+            LockstepError: a participant reported an error, broke the protocol or made no progress for
+                ``/lockstep/watchdog_s`` (the run stops: the bridge is required).
         """
-        watched = set(self._settle_nodes) | {rospy.get_name()}
-        uri = node_uri_lookup(master.lookupNode)
-        bus_info = bus_info_over_xmlrpc(rospy.get_name(), uri)
-        pending: list[str] = []
-        last_state: Any = None
-        stable_since = time.monotonic()
-        while time.monotonic() < deadline and not rospy.is_shutdown():
-            state = master.getSystemState()
-            pubs, subs, _srvs = state
-            if state != last_state:
-                last_state, stable_since = state, time.monotonic()
-            pending = [] if time.monotonic() - stable_since >= 1.0 else ["(the ROS graph is still changing)"]
-            pending += unconnected_subscriptions(
-                pubs, subs, subscriber_nodes=watched, publisher_nodes=watched, bus_info=bus_info, node_uri=uri
-            )
-            if not pending:
-                return []
-            time.sleep(0.1)
-        return pending
-
-    def _settle_wait(self, what: str) -> None:
-        """Determinism: wait until the run's processes are idle; a timeout only warns."""
-        if self._settle is None or self._lockstep_denied:
-            return
-        if not self._settle_started:
-            if what == "before the next grant":
-                self._settle_first_grant()
-            return
-        if not self._settle.wait(rospy.is_shutdown) and not rospy.is_shutdown():
-            rospy.logwarn_throttle(
-                10.0,
-                "lockstep settle: the run's processes were still busy after %.0f s (%s); going on, "
-                "this run may not be reproducible (%d timeouts so far)",
-                self._settle.timeout_s,
-                what,
-                self._settle.stats.timeouts,
-            )
+        master = self.master
+        assert master is not None
+        snap = self.tracker.snapshot
+        if snap.heartbeats == 0 and snap.state is None:
+            return  # nothing heard from the SITL yet
         if self._awaiting_ack:
-            self._grant_sent_at = time.monotonic()  # our own wait is not the SITL being late
+            if now - self._grant_sent_at > 10.0 * self.cfg.lockstep.grant_timeout_s:
+                rospy.logwarn_throttle(10.0, "lockstep: still waiting for the SITL's COMMAND_ACK for SIM_STEP")
+            return
+        if self.grants > master.step:
+            return  # the state of our last grant has not been processed yet
+        if not master.try_start():
+            return
+        if self._frozen_listeners is None:
+            self._freeze_listeners()
+        if not master.can_grant():
+            master.check_watchdog()
+            return
+        if snap.state is not None:
+            report = self.engine.terrain_report(snap.state, self._home())
+            if report is not None:
+                self.link.send_terrain_report(
+                    report.lat_deg, report.lon_deg, report.terrain_amsl_m, report.above_terrain_m
+                )
+        self._send_grant(now)
 
     def _send_grant(self, now: float) -> None:
-        self._settle_wait("before the next grant")
-        self.link.send_sim_step(self.cfg.lockstep.steps_per_grant)
+        self.link.send_sim_step(self.cfg.lockstep.steps_per_grant, step=self.grants + 1)
         self._awaiting_ack = True
         self._grant_sent_at = now
         self.grants += 1
@@ -643,7 +641,24 @@ class SimBridgeNode:
     def _wanted(self, name: str) -> bool:
         if not self.cfg.publish.only_when_subscribed:
             return True
-        return any(p.get_num_connections() > 0 for p in self.cam_pubs[name].pixels())
+        return any(self._listened(p) for p in self.cam_pubs[name].pixels())
+
+    def _listened(self, pub: Any) -> bool:
+        """Does anyone subscribe to ``pub``? In the causal lockstep, as it was when the run started: what is
+        rendered (and so every seeded draw of the cameras' noise and effects) must not depend on a viewer that
+        comes and goes (rviz, ``rostopic hz``, the scorer's report snapshots)."""
+        frozen = self._frozen_listeners
+        if frozen is not None:
+            return frozen.get(pub.name, False)
+        return bool(pub.get_num_connections() > 0)
+
+    def _freeze_listeners(self) -> None:
+        pubs = [self.pub_det, *self.pub_boxes.values()]
+        for cam in self.cam_pubs.values():
+            pubs.extend(cam.all())
+        self._frozen_listeners = {p.name: p.get_num_connections() > 0 for p in pubs}
+        listened = sorted(n for n, on in self._frozen_listeners.items() if on)
+        rospy.loginfo("lockstep: published for the whole run (subscribed at the start): %s", ", ".join(listened))
 
     def _process(self, now: float) -> None:
         snap = self.tracker.snapshot
@@ -653,15 +668,11 @@ class SimBridgeNode:
         self._processed_t = t
         self._update_rtf(now, t)
         self._last_state_wall = now
-        # Determinism: the state's MAVLink telemetry reaches its clients before ROS time moves, and the
-        # reactions to the new time (timers) finish before the state's data is published.
-        self._settle_wait("before /clock")
         self.pub_clock.publish(conv.clock(t))
-        self._settle_wait("after /clock")
         want_det = (
             not self.cfg.publish.only_when_subscribed
-            or self.pub_det.get_num_connections() > 0
-            or any(p.get_num_connections() > 0 for p in self.pub_boxes.values())
+            or self._listened(self.pub_det)
+            or any(self._listened(p) for p in self.pub_boxes.values())
         )
         out = self.engine.step(state, home=self._home(), wanted=self._wanted, want_detections=want_det)
         cfg = self.cfg
@@ -689,21 +700,28 @@ class SimBridgeNode:
                 motors=snap.motor_outputs,
             )
         )
+        if self.master is not None:
+            if self._last_state_t is not None and self.master.step_s == 0.0:
+                self.master.step_s = t - self._last_state_t
+            self.master.publish_tick(t)
+        self._last_state_t = t
 
     def _publish_camera(self, t: float, out: CameraOutput) -> None:
         hdr = conv.header(t, out.camera.optical_frame_id)
         pubs = self.cam_pubs[out.camera.name]
         every = not self.cfg.publish.only_when_subscribed
 
-        def on(p: rospy.Publisher) -> bool:
-            return every or p.get_num_connections() > 0
+        def on(p: Any) -> bool:
+            return every or self._listened(p)
 
         info = conv.camera_info(out.camera, hdr)
         # Intrinsics go out with every frame the camera delivers, rendered or detection-only (a consumer of the
-        # detections, e.g. the geolocator, needs them; they cost no render), before the detections.
-        if out.delivered and on(pubs.color_info):
+        # detections, e.g. the geolocator, needs them; they cost no render), before the detections; once a frame
+        # (a delayed frame's went out with its detections at capture time).
+        send_info = out.delivered and not out.info_sent
+        if send_info and on(pubs.color_info):
             pubs.color_info.publish(info)
-        if out.delivered and on(pubs.depth_info):
+        if send_info and on(pubs.depth_info):
             pubs.depth_info.publish(info)
         if out.detections is not None:
             self.pub_det.publish(conv.detection_array(hdr, out.camera.name, out.detections))  # the scene's truth

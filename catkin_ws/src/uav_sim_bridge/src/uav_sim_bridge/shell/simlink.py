@@ -161,11 +161,13 @@ class SimLinkClient:
         return self.sock.fileno()
 
     # ------------------------------------------------------------------ receive
-    def receive(self, timeout_s: float) -> list[Any]:
-        """Every message pending now, waiting up to ``timeout_s`` for the first datagram."""
-        ready, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
+    def receive(self, timeout_s: float, *, wake_fd: int | None = None) -> list[Any]:
+        """Every message pending now, waiting up to ``timeout_s`` for the first datagram (or for ``wake_fd`` to
+        become readable: another event the caller waits for, e.g. a lockstep participant's done)."""
+        fds: list[Any] = [self.sock] if wake_fd is None else [self.sock, wake_fd]
+        ready, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
         out: list[Any] = []
-        if not ready:
+        if self.sock not in ready:
             return out
         for _ in range(1024):
             try:
@@ -224,9 +226,11 @@ class SimLinkClient:
             )
         )
 
-    def send_sim_step(self, steps: int) -> None:
+    def send_sim_step(self, steps: int, *, step: int = 0) -> None:
+        """SIM_STEP: run ``steps`` physics steps; ``step`` is the number of this grant (1, 2, ...; 0 = unnumbered),
+        which the SITL checks (docs/architecture.md, simulation link)."""
         self._send(
             mavlink.MAVLink_command_long_message(
-                self._target_system, self._target_component, SIM_STEP, 0, float(steps), 0, 0, 0, 0, 0, 0
+                self._target_system, self._target_component, SIM_STEP, 0, float(steps), float(step), 0, 0, 0, 0, 0
             )
         )

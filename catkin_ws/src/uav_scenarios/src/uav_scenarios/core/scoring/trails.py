@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from uav_common.voxel_keys import pack_keys, sorted_unique, unpack_keys
+from uav_common.voxel_keys import in_sorted, pack_keys, sorted_unique, unpack_keys
 
 __all__ = ["LastSeen", "ObjectStateRecord", "TrailStats", "TrailTracker", "box_voxel_keys"]
 
@@ -157,9 +157,10 @@ class TrailTracker:
         (without it every voxel counts as seen again)."""
         self._merge()
         occupied = sorted_unique(np.asarray(map_keys, dtype=np.int64))
-        visited = ~np.isin(self._keys, self.static_keys, assume_unique=True)
+        # binary searches: the trails are a few thousand keys, the static world and the map millions
+        visited = ~in_sorted(self._keys, sorted_unique(self.static_keys))
         left = visited & ~np.isin(self._keys, self._current, assume_unique=True)
-        now_occupied = np.isin(self._keys, occupied, assume_unique=True)
+        now_occupied = in_sorted(self._keys, occupied)
         self._mapped = np.union1d(self._mapped, self._keys[visited & now_occupied])
         was_mapped = np.isin(self._keys, self._mapped, assume_unique=True)
         candidates = left & was_mapped
