@@ -62,7 +62,7 @@ train-detector: setup ## opt-in: install torch (CPU) + onnx, generate the traini
 campaign-smoke: setup ## the CI-sized campaign (4 short runs) on an embedded Dask cluster -> runs/campaigns/smoke
 	@$(IN_ENV) uav-campaign run config/campaigns/smoke.yaml --out runs/campaigns/smoke
 
-campaign-loiter: setup ## the loiter weighting study (16 runs of 480 s, ~1 h on 2 cores, niced) -> runs/campaigns/loiter_weights
+campaign-loiter: setup ## the loiter weighting study (32 deterministic runs of 480 s, ~4 h on 2 cores, niced) -> runs/campaigns/loiter_weights
 	@nice -n 10 $(IN_ENV) uav-campaign run config/campaigns/loiter_weights.yaml --out runs/campaigns/loiter_weights
 
 docker-build: ## build docker/Dockerfile (needs a Docker engine)

@@ -37,6 +37,13 @@ Results (``bench/results/latest.jsonl``):
   error, the map precision of both, the frames dropped and the autopilot odometry node's CPU. It flies in the
   ``gusty`` preset's wind (5 m/s from the west at 10 m, shear 0.14, moderate seeded Dryden turbulence), so the
   SITL's wind model is in the loop too. ``--skip-autopilot-lossy`` leaves it out.
+* ``scenario.loiter.rtf_deterministic_ratio``: the default loiter in deterministic (causal) lockstep
+  (``uav-run --deterministic``, docs/lockstep.md), alternated with the plain lockstep loiter in the same run;
+  baseline the plain loiter's real-time factor; target ratio >= 0.8 (issue 31). Its notes say whether the
+  deterministic runs were identical, the map frames each dropped (0 in deterministic lockstep) and the CPU.
+* ``scenario.loiter.deterministic_beside_cpu_hog``: the deterministic loiter once more beside a busy loop on every
+  core: its real-time factor (baseline: the deterministic runs alone) and whether its metrics and time series are
+  identical to the first run alone (``met``). ``--skip-deterministic`` leaves both out.
 
 Usage: ``scripts/in_env python bench/bench_scenario.py [--sim-seconds 120] [--repeats 2]``. The machine's
 speed and the loiter's path (it depends on the map, which depends on the frames the map server had time for)
@@ -68,10 +75,13 @@ from typing import Any
 
 import yaml
 from benchlib import REPO, record
+from helpers.runs import cpu_hogs
 
 LOITER = REPO / "config/scenarios/loiter.yaml"
 LAWNMOWER = REPO / "bench/scenarios/loiter_lawnmower.yaml"
 RTF_TARGET = 3.0
+#: Deterministic (causal) lockstep must keep at least this share of plain lockstep's real-time factor (issue 31).
+DETERMINISTIC_MIN_RATIO = 0.8
 #: The autopilot-pose, lossy-link loop may lose at most this share of the clean loop's real-time factor.
 AUTOPILOT_LOSSY_MAX_LOSS = 0.10
 
@@ -163,11 +173,14 @@ def _node_name(cmdline: bytes) -> str:
     return Path(args[0]).name if args else "?"
 
 
-def run(scenario: Path, run_dir: Path, sim_seconds: float) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
-    """One uav-run in lockstep without recording; returns (metrics.json, pace.json, CPU s per process)."""
+def run(
+    scenario: Path, run_dir: Path, sim_seconds: float, *, deterministic: bool = False
+) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
+    """One uav-run in plain (or deterministic) lockstep without recording; returns (metrics.json, pace.json, CPU s
+    per process)."""
     argv = [
-        "uav-run", str(scenario), "--run-dir", str(run_dir), "--lockstep", "--no-record", "--quiet",
-        "--time-limit", f"{sim_seconds:g}",
+        "uav-run", str(scenario), "--run-dir", str(run_dir), "--deterministic" if deterministic else "--lockstep",
+        "--no-record", "--quiet", "--time-limit", f"{sim_seconds:g}",
     ]  # fmt: skip
     t0 = time.monotonic()
     with CpuSampler(run_dir) as cpu:
@@ -239,7 +252,7 @@ class Runs:
         return self.mean(lambda i: float(self.metrics[i]["coverage"][key]))
 
 
-def main() -> int:
+def parse_args() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sim-seconds", type=float, default=120.0, help="simulated seconds per run")
     p.add_argument("--repeats", type=int, default=2, help="runs of each scenario (figures are their means)")
@@ -249,7 +262,41 @@ def main() -> int:
     p.add_argument(
         "--skip-autopilot-lossy", action="store_true", help="no runs on the autopilot's estimate over the lossy link"
     )
-    args = p.parse_args()
+    p.add_argument(
+        "--skip-deterministic", action="store_true", help="no deterministic runs (and no run beside a CPU hog)"
+    )
+    return p.parse_args()
+
+
+@dataclass
+class Variants:
+    """The runs of each scenario variant, and which variants run."""
+
+    loiter: Runs = field(default_factory=Runs)
+    mower: Runs = field(default_factory=Runs)
+    det: Runs = field(default_factory=Runs)
+    static: Runs = field(default_factory=Runs)
+    nadir10: Runs = field(default_factory=Runs)
+    lossy: Runs = field(default_factory=Runs)
+    order: list[tuple[Runs, Path, str]] = field(default_factory=list)
+
+
+def variants_for(args: argparse.Namespace, parent: Path) -> Variants:
+    v = Variants()
+    v.order = [(v.loiter, LOITER, "loiter"), (v.mower, LAWNMOWER, "lawnmower")]
+    if not args.skip_deterministic:
+        v.order.insert(1, (v.det, LOITER, "loiter_deterministic"))
+    if not args.skip_static:
+        v.order.append((v.static, static_world_scenario(parent / "loiter_static.yaml"), "loiter_static"))
+    if not args.skip_nadir_10hz:
+        v.order.append((v.nadir10, nadir_10hz_scenario(parent / "loiter_nadir_10hz.yaml"), "loiter_nadir_10hz"))
+    if not args.skip_autopilot_lossy:
+        v.order.append((v.lossy, autopilot_lossy_scenario(parent / "loiter_autopilot_lossy.yaml"), "autopilot_lossy"))
+    return v
+
+
+def main() -> int:
+    args = parse_args()
     if shutil.which("uav-run") is None:
         sys.stderr.write("bench_scenario: uav-run not on PATH; run inside the project environment (scripts/in_env)\n")
         return 2
@@ -257,23 +304,24 @@ def main() -> int:
         sys.stderr.write("bench_scenario: --repeats must be >= 1\n")
         return 2
     parent = args.keep or Path(tempfile.mkdtemp(prefix="bench_scenario_"))
-    loiter, mower, nadir10, static, lossy = Runs(), Runs(), Runs(), Runs(), Runs()
-    variants = [(loiter, LOITER, "loiter"), (mower, LAWNMOWER, "lawnmower")]
     parent.mkdir(parents=True, exist_ok=True)
-    if not args.skip_static:
-        variants.append((static, static_world_scenario(parent / "loiter_static.yaml"), "loiter_static"))
-    if not args.skip_nadir_10hz:
-        variants.append((nadir10, nadir_10hz_scenario(parent / "loiter_nadir_10hz.yaml"), "loiter_nadir_10hz"))
-    if not args.skip_autopilot_lossy:
-        variants.append((lossy, autopilot_lossy_scenario(parent / "loiter_autopilot_lossy.yaml"), "autopilot_lossy"))
+    v = variants_for(args, parent)
+    loiter, mower, nadir10, static, lossy, det, variants = (
+        v.loiter,
+        v.mower,
+        v.nadir10,
+        v.static,
+        v.lossy,
+        v.det,
+        v.order,
+    )
     try:
-        for i in range(args.repeats):
-            for runs, scenario, name in variants:
-                runs.probes.append(machine_probe())
-                metrics, pace, cpu = run(scenario, parent / f"{name}_{i}", args.sim_seconds)
-                runs.metrics.append(metrics)
-                runs.pace.append(pace)
-                runs.cpu.append(cpu)
+        run_all(variants, det, parent, args.sim_seconds, args.repeats)
+        if det.metrics:
+            # the deterministic loiter once more beside a CPU hog on every core: slower, and identical
+            with cpu_hogs(os.cpu_count() or 2):
+                hog_probe = machine_probe()
+                hog = run(LOITER, parent / "loiter_deterministic_hog", args.sim_seconds, deterministic=True)
     finally:
         if args.keep is None:
             shutil.rmtree(parent, ignore_errors=True)
@@ -366,6 +414,8 @@ def main() -> int:
             )
             + f"; machine probe {static.probe_notes()}",
         )
+    if det.metrics:
+        record_deterministic(det, loiter, hog, hog_probe)
     if lossy.metrics:
         ratio = lossy.rtf() / rtf
         pose = [m["pose_estimate"]["error"] for m in lossy.metrics]
@@ -387,6 +437,59 @@ def main() -> int:
             f"{lossy.per_node().get('autopilot_odometry', 0.0):.3f}; machine probe {lossy.probe_notes()}",
         )
     return 0
+
+
+def run_all(variants: list[tuple[Runs, Path, str]], det: Runs, parent: Path, sim_s: float, repeats: int) -> None:
+    """Every variant ``repeats`` times, alternated (the machine's drift hits them all); ``det`` runs deterministic."""
+    for i in range(repeats):
+        for runs, scenario, name in variants:
+            runs.probes.append(machine_probe())
+            metrics, pace, cpu = run(scenario, parent / f"{name}_{i}", sim_s, deterministic=runs is det)
+            runs.metrics.append(metrics)
+            runs.pace.append(pace)
+            runs.cpu.append(cpu)
+
+
+RunResult = tuple[dict[str, Any], dict[str, float], dict[str, float]]
+
+
+def record_deterministic(det: Runs, loiter: Runs, hog: RunResult, hog_probe: tuple[float, float]) -> None:
+    """``scenario.loiter.rtf_deterministic_ratio`` and ``scenario.loiter.deterministic_beside_cpu_hog``."""
+    rtf, cpu = loiter.rtf(), loiter.cpu_per_sim_s()
+    ratio = det.rtf() / rtf
+    same = [k for k in range(len(det.metrics)) if _same_run(det.metrics[k], det.metrics[0])]
+    record(
+        "scenario.loiter.rtf_deterministic_ratio",
+        det.rtf(),
+        "x",
+        rtf,
+        target=f">= {DETERMINISTIC_MIN_RATIO:g} of plain lockstep",
+        met=ratio >= DETERMINISTIC_MIN_RATIO,
+        notes=f"the default loiter in deterministic (causal) lockstep (runs {det.rtfs()}) against plain lockstep in "
+        f"the same run ({loiter.rtfs()}), alternated; deterministic runs identical to the first: "
+        f"{len(same)} of {len(det.metrics)}; map frames dropped {det.dropped_pct():.1f} % (plain "
+        f"{loiter.dropped_pct():.1f} %); CPU {det.cpu_per_sim_s():.3f} cpu-s/sim-s (plain {cpu:.3f}), per node: "
+        + ", ".join(f"{k} {v:.3f}" for k, v in det.per_node().items() if v >= 0.005)
+        + f"; machine probe {det.probe_notes()}",
+    )
+    hog_metrics, hog_pace, _ = hog
+    identical = _same_run(hog_metrics, det.metrics[0])
+    record(
+        "scenario.loiter.deterministic_beside_cpu_hog",
+        float(hog_pace["real_time_factor"]),
+        "x",
+        det.rtf(),
+        target="identical to the run alone",
+        met=identical,
+        notes=f"the deterministic loiter beside {os.cpu_count() or 2} busy loops (one per core): metrics and time "
+        f"series {'identical to' if identical else 'DIFFERENT from'} the first deterministic run alone; baseline: the "
+        f"deterministic runs alone; machine probe under the hogs {hog_probe[0]:.0f}/{hog_probe[1]:.0f} ms",
+    )
+
+
+def _same_run(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Two runs' metrics equal (the software versions aside)."""
+    return {k: v for k, v in a.items() if k != "versions"} == {k: v for k, v in b.items() if k != "versions"}
 
 
 def static_world_scenario(path: Path) -> Path:

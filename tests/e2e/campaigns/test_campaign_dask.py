@@ -4,8 +4,9 @@
 ``uav-campaign run --scheduler``. While the first run is flying, its worker is killed (SIGKILL to the
 worker process): the run is recorded as orphaned with its logs, its ``uav-run`` stops (nothing is left
 running), Dask gives it to the other worker, and the campaign ends with all four runs done and their
-statistics. A second invocation runs nothing. Bad input (an unreachable scheduler, a directory made by
-another campaign file) is refused before anything starts.
+statistics. A run flown on a worker (beside another run: the runs are deterministic) equals the same run flown
+alone. A second invocation runs nothing. Bad input (an unreachable scheduler, a directory made by another campaign
+file) is refused before anything starts.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 
 import pytest
 from helpers.procs import REPO, Proc, artifacts_dir, free_port
+from helpers.runs import metrics_differences, uav_run
 
 pytestmark = pytest.mark.slow
 SMOKE = REPO / "config" / "campaigns" / "smoke.yaml"
@@ -162,6 +164,13 @@ def test_a_killed_worker_s_run_completes_on_the_other_and_a_rerun_runs_nothing(c
     assert "data:image/png;base64," in html
     assert "dashboard:" in text
     assert " done, " in text  # the progress line: [####....] 3/4 done, 0 failed, 1 running, ...
+    # deterministic runs (smoke.yaml's time): a run flown on a Dask worker beside another run is the run flown alone
+    other = next(e for e in events if e["event"] == "finished" and e["status"] == "done" and e["key"] != key)
+    on_worker = Path(other["run_dir"])
+    alone, _ = uav_run(on_worker / "campaign_scenario.yaml", "alone", group="campaign_e2e")
+    differ = metrics_differences(on_worker, alone)
+    assert not differ, f"the run on the Dask worker and the same run alone differ: {dict(list(differ.items())[:8])}"
+    assert (on_worker / "timeseries.csv").read_text() == (alone / "timeseries.csv").read_text()
     # the second invocation runs nothing new
     n_events = len(events)
     again = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=False)

@@ -1,5 +1,6 @@
 """Scenario runs end to end: uav-run (SITL, router, bridge, map server, autonomy, scorer, rosbag) in the
-small scenario world, then the report, a replay without the simulator, and determinism.
+small scenario world, then the report and a replay without the simulator (determinism:
+test_scenario_determinism_e2e.py).
 
 Every run gets a private ROS master and free ports (uav-run allocates them), writes into
 ``artifacts/scenario_e2e/`` and is stopped by uav-run itself (SIGINT to roslaunch, then escalation);
@@ -10,12 +11,9 @@ from __future__ import annotations
 
 import csv
 import itertools
-import json
 import math
 import os
 import re
-import shutil
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -23,6 +21,7 @@ from typing import Any
 
 import pytest
 from helpers.procs import REPO, Proc, artifacts_dir, free_port
+from helpers.runs import flat, metrics, uav_run
 
 from uav_scenarios.report.data import read_run_bag
 
@@ -33,38 +32,6 @@ FIGURES = ("cameras", "maps", "topdown", "voxels", "battery_altitude", "detectio
 
 def runs_dir() -> Path:
     return artifacts_dir() / "scenario_e2e"
-
-
-def uav_run(scenario: Path, name: str, *extra: str, timeout_s: float = 240.0) -> tuple[Path, str]:
-    """Run ``uav-run`` to the end; returns the run folder and uav-run's output."""
-    run_dir = runs_dir() / name
-    shutil.rmtree(run_dir, ignore_errors=True)
-    proc = Proc(f"uav_run_{name}", ["uav-run", str(scenario), "--run-dir", str(run_dir), "--quiet", *extra])
-    try:
-        rc = proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.signal(signal.SIGINT)  # uav-run stops its run and still builds the report
-        proc.wait(60)
-        pytest.fail(f"uav-run {name} took longer than {timeout_s} s:\n{proc.tail()}")
-    finally:
-        proc.stop()
-    out = proc.log_text()
-    assert rc == 0, f"uav-run {name} exited {rc}:\n{out[-3000:]}"
-    return run_dir, out
-
-
-def metrics(run_dir: Path) -> dict[str, Any]:
-    return json.loads((run_dir / "metrics.json").read_text())
-
-
-def flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        if isinstance(value, dict):
-            out.update(flat(value, f"{prefix}{key}."))
-        elif not isinstance(value, list):
-            out[prefix + key] = value
-    return out
 
 
 def assert_box_only_search(run_dir: Path, m: dict[str, Any], source: str) -> None:
@@ -255,24 +222,6 @@ def test_replay_reproduces_the_live_metrics() -> None:
     for key in ("coverage.mapped_pct", "map_accuracy.iou", "map_accuracy.precision", "map_accuracy.recall"):
         assert again[key] == pytest.approx(live[key], rel=0.05), key
     assert live["map_accuracy.precision"] > 0.9
-
-
-def test_deterministic_runs_are_identical() -> None:
-    a, _ = uav_run(HERE / "small_lawnmower.yaml", "det_a", "--name", "det")
-    b, _ = uav_run(HERE / "small_lawnmower.yaml", "det_b", "--name", "det")
-    ma, mb = flat(metrics(a)), flat(metrics(b))
-    differ = {k: (ma[k], mb.get(k)) for k in ma if not k.startswith("versions.") and ma[k] != mb.get(k)}
-    assert not differ, f"metrics differ: {differ}"
-    ra, rb = read_run_bag(a / "run.bag"), read_run_bag(b / "run.bag")
-    assert ra.trajectory.shape[0] > 100
-    stamps_a = {round(t + ra.start_stamp_s, 3): tuple(xyz) for t, *xyz in ra.trajectory}
-    stamps_b = {round(t + rb.start_stamp_s, 3): tuple(xyz) for t, *xyz in rb.trajectory}
-    common = sorted(set(stamps_a) & set(stamps_b))
-    assert len(common) > 0.9 * len(stamps_a)
-    assert [stamps_a[t] for t in common] == [stamps_b[t] for t in common]  # bit for bit
-    rows_a = (a / "timeseries.csv").read_text()
-    rows_b = (b / "timeseries.csv").read_text()
-    assert rows_a == rows_b
 
 
 def test_bad_inputs_say_what_to_do(tmp_path: Path) -> None:

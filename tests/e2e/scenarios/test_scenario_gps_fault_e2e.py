@@ -14,7 +14,7 @@ import csv
 from pathlib import Path
 
 import pytest
-from e2e.scenarios.test_scenario_e2e import metrics, uav_run
+from helpers.runs import metrics, uav_run
 
 pytestmark = pytest.mark.slow
 HERE = Path(__file__).resolve().parent

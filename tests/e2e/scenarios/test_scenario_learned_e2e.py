@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 
 import pytest
-from e2e.scenarios.test_scenario_e2e import HERE, assert_box_only_search, metrics, uav_run
+from e2e.scenarios.test_scenario_e2e import HERE, assert_box_only_search
+from helpers.runs import metrics, uav_run
 
 pytestmark = pytest.mark.slow
 

@@ -45,9 +45,9 @@ Scoring itself is :class:`uav_scenarios.core.scoring.run.RunScorer`; the ground 
 :func:`uav_scenarios.shell.world_store.scene_truth` (surface voxels are computed in the background
 the first time, then cached on disk).
 
-Causal lockstep (docs/lockstep.md): a participant with a lookahead of 50 steps (the mission manager's ``mapped_pct``
-stop criterion reads its metrics, so it is in the loop, but up to 5 s of simulated time behind it costs the loop
-nothing: its scoring is the heaviest Python of a run, and comes in bursts).
+Causal lockstep (docs/lockstep.md): a participant with a lookahead of 10 steps (the mission manager's ``mapped_pct``
+stop criterion reads its metrics, so it is in the loop, but up to a second of simulated time behind it costs the
+loop nothing: its scoring is the heaviest Python of a run, and comes in bursts).
 Every record it scores is a counted input, its timer fires from the step, the ground truth is loaded before the
 first step, and the map export is applied at the step boundary the protocol names: the time series and the
 metrics are the same in every run. Only the report's camera snapshots are taken from whatever frame comes
@@ -155,7 +155,7 @@ TRACKING_PERIOD_S = 20.0
 #: Detector-camera images kept for cutting the gallery's crops (frames are scored HOLD_S after their stamp).
 GALLERY_IMAGES = 40
 #: Steps between its inputs and when its metrics are consumed, in the causal lockstep (docs/lockstep.md).
-LOOKAHEAD_STEPS = 50
+LOOKAHEAD_STEPS = 10
 
 
 def default_truth(scenario: Scenario) -> SceneTruth:
@@ -245,8 +245,10 @@ class ScorerNode:
         self._next_accuracy_s = -math.inf
         self._export_dir = Path(tempfile.mkdtemp(prefix="uav_scorer_"))
         self._exports_made = 0
-        #: Causal lockstep: exports on their way, (step their answer is taken at, time, file, future).
+        #: Causal lockstep: exports on their way, (step their answer is taken at, time, file, future), and the final
+        #: one (started when the stop is seen).
         self._exports: list[tuple[int, float, Path, Any]] = []
+        self._final_export: tuple[int, float, Path, Any] | None = None
         self.versions = run_versions()
         self.map_input: dict[str, int] = {}  # the map server's cloud totals (its last ~insert_stats)
 
@@ -505,8 +507,11 @@ class ScorerNode:
             # The final metrics are taken at the stop instant (not whenever a callback runs), so a live run
             # and its replay end on the same sample; records stamped up to the stop may still be on their
             # way, so the summary is made at the first /clock 2 x HOLD_S later (on_clock), and the map is
-            # exported then: in a deterministic run the simulation waits for that.
+            # exported then (in the causal lockstep the final export is started now, when the stop is seen, and
+            # taken a lookahead later: the map as it is then, in every run).
             self._finish_at_s = t + 2 * HOLD_S
+            if self.ls.causal:
+                self._final_export = self._start_export(t)
 
     def on_clock(self, msg: Clock) -> None:
         self._finish_due(msg.clock.to_sec())
@@ -515,6 +520,9 @@ class ScorerNode:
         at = self._finish_at_s
         if at is None or self.finished or now < at:
             return
+        final = self._final_export
+        if final is not None and (self.ls.processing_step or 0) < final[0]:
+            return  # causal lockstep: the final export's answer is taken at its step
         assert self.end_s is not None
         self.finish(at_s=self.end_s)
 
@@ -550,7 +558,9 @@ class ScorerNode:
         (:meth:`_take_exports`): the map server applies it at the boundary the protocol names, and a scorer with a
         long lookahead would stand still until then. The final one (``wait``) is taken at once."""
         if self.ls.causal and not wait:
-            self._start_export(t_s)
+            started = self._start_export(t_s)
+            if started is not None:
+                self._exports.append(started)
             return
         if not self._accuracy_busy.acquire(blocking=wait):
             return  # the previous export is still running
@@ -572,13 +582,14 @@ class ScorerNode:
         self._exports_made += 1
         return self._export_dir / f"occupied_{self._exports_made}.npy"
 
-    def _start_export(self, t_s: float) -> None:
+    def _start_export(self, t_s: float) -> tuple[int, float, Path, Any] | None:
+        """Causal lockstep: start an export (``call_later``); the periodic ones are queued for their step."""
         if self.scorer.truth.surface_keys.size == 0:
-            return
+            return None
         path = self._export_path()
         request = ExportVoxelsRequest(path=str(path), resolution_m=self.scenario.map.resolution_m)
         due, future = self.ls.call_later(f"{self.map_server_ns}/export_occupied", ExportVoxels, request, wait_s=1.0)
-        self._exports.append((due, t_s, path, future))
+        return due, t_s, path, future
 
     def _take_exports(self, step: float) -> None:
         """Causal lockstep: the exports due by ``step`` (their answers are there: the map server applied them at
@@ -708,7 +719,12 @@ class ScorerNode:
                 return
             now = at_s if at_s is not None else (self.end_s if self.end_s is not None else rospy.get_time())
             self._flush_scored(now)
-            if now > 0 and not rospy.is_shutdown():
+            final, self._final_export = self._final_export, None
+            if final is not None:  # causal lockstep: started at the stop, taken now
+                self._take_exports(math.inf)
+                self._exports.append(final)
+                self._take_exports(math.inf)
+            elif now > 0 and not rospy.is_shutdown():
                 self._map_accuracy(now, wait=True)
             if now > 0:
                 self._publish_grids()
