@@ -11,6 +11,7 @@ import logging
 import os
 import socket
 import threading
+import time
 
 import pytest
 
@@ -19,7 +20,7 @@ os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from uav_common.errors import UavCommonError, WaitTimeoutError
+from uav_common.errors import StopRequestedError, UavCommonError, WaitTimeoutError
 from uav_common.lockstep.markers import (
     MESSAGE_TYPE,
     PAYLOAD_LEN,
@@ -226,6 +227,18 @@ def test_the_watchdog_logs_and_then_raises(
         client.read_step(1, watchdog_s=0.35)
     assert "still waiting for the peer's STEP(1) marker on test link" in caplog.text
     assert "(1 messages so far)" in caplog.text
+
+
+def test_a_wait_ends_when_the_program_shuts_down(link: tuple[LockstepClient, Peer, object]) -> None:
+    client, peer, _ = link
+    register(client, peer)
+    stopping = threading.Event()
+    client._should_stop = stopping.is_set  # as a node passes rospy.is_shutdown
+    threading.Timer(0.3, stopping.set).start()
+    t0 = time.monotonic()
+    with pytest.raises(StopRequestedError, match=r"stopped while waiting for the peer's STEP\(1\) marker"):
+        client.read_step(1, watchdog_s=30.0)
+    assert time.monotonic() - t0 < 3.0, "a node shutting down must not sit out its watchdog"
 
 
 def test_udp_sockets_get_a_large_receive_buffer(link: tuple[LockstepClient, Peer, object]) -> None:

@@ -13,7 +13,7 @@ can catch either (``except ScenarioError`` or ``except ConfigError``):
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "ResourceError", "UavCommonError", "WaitTimeoutError"]
+__all__ = ["ConfigError", "ResourceError", "StopRequestedError", "UavCommonError", "WaitTimeoutError"]
 
 
 class UavCommonError(Exception):
@@ -43,3 +43,7 @@ class WaitTimeoutError(UavCommonError):
         self.describe = describe
         self.timeout_s = timeout_s
         self.last_value = last_value
+
+
+class StopRequestedError(UavCommonError):
+    """A wait ended because the program is shutting down (e.g. a node's SIGINT), not because of a failure."""

@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from uav_common.errors import StopRequestedError
 from uav_common.lockstep.protocol import (
     BoundaryQueue,
     InputLedger,
@@ -429,14 +430,18 @@ class Participant(_Counter):
         if self.static:
             rospy.spin()
             return
-        while not rospy.is_shutdown() and not self._stopped:
-            work = self._next_work()
-            if work is None:
-                continue
-            if isinstance(work, Tick):
-                self._run_step(work)
-            else:
-                self._serve(work)
+        try:
+            while not rospy.is_shutdown() and not self._stopped:
+                work = self._next_work()
+                if work is None:
+                    continue
+                if isinstance(work, Tick):
+                    self._run_step(work)
+                else:
+                    self._serve(work)
+        except (StopRequestedError, rospy.ROSInterruptException):
+            if not (rospy.is_shutdown() or self._stopped):
+                raise  # not a shutdown: a failure, reported as such
 
     def _join(self) -> None:
         import rospy  # noqa: PLC0415

@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from uav_common.errors import WaitTimeoutError
+from uav_common.errors import StopRequestedError, WaitTimeoutError
 from uav_common.lockstep.markers import (
     MESSAGE_TYPE,
     Marker,
@@ -62,6 +62,8 @@ class LockstepClient:
         target_system, target_component: who the markers are addressed to (the autopilot's ids, 1/1, whether
             the peer is the router or the SITL).
         clock: the wall clock of the watchdog.
+        should_stop: asked while waiting (about once a second): True ends the wait with
+            :class:`~uav_common.errors.StopRequestedError` (the program is shutting down).
 
     Every message sent through ``conn.mav`` from now on is counted (markers excluded): the connection's
     ``mav.send`` is wrapped.
@@ -75,8 +77,10 @@ class LockstepClient:
         target_system: int = 1,
         target_component: int = 1,
         clock: Callable[[], float] = time.monotonic,
+        should_stop: Callable[[], bool] | None = None,
     ) -> None:
         self.conn = conn
+        self._should_stop = should_stop
         self.name = name or str(getattr(conn, "address", "MAVLink link"))
         self.target_system = target_system
         self.target_component = target_component
@@ -274,6 +278,9 @@ class LockstepClient:
                 next_log = now + LOG_EVERY_S
             if now - start >= watchdog_s:
                 raise WaitTimeoutError(what, watchdog_s, None if progress is None else len(progress))
+            if self._should_stop is not None and self._should_stop():
+                msg = f"{self.name}: stopped while waiting for {what}"
+                raise StopRequestedError(msg)
             if outcome is not None:
                 continue
             fd = self._fileno()

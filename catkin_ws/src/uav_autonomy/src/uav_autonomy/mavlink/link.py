@@ -294,8 +294,11 @@ class MavlinkLink:
         """Is the link in lockstep (after :meth:`start_lockstep`)?"""
         return self._lockstep is not None
 
-    def start_lockstep(self, lookahead_steps: int, watchdog_s: float = 120.0) -> int:
+    def start_lockstep(
+        self, lookahead_steps: int, watchdog_s: float = 120.0, *, should_stop: Callable[[], bool] | None = None
+    ) -> int:
         """Say HELLO(``lookahead_steps``) to the router (or the SITL); returns the step it registered this client at.
+        ``should_stop`` (e.g. ``rospy.is_shutdown``) ends a wait for the router with ``StopRequestedError``.
 
         Raises:
             MavlinkLinkError: the link is not open.
@@ -307,6 +310,7 @@ class MavlinkLink:
             name=f"MAVLink link {self.url}",
             target_system=self.target_system,
             target_component=self.target_component,
+            should_stop=should_stop,
         )
         self._watchdog_s = watchdog_s
         step = client.hello(lookahead_steps, watchdog_s=watchdog_s)

@@ -133,7 +133,7 @@ class AutopilotOdometryNode:
         self.link.open(rospy.get_time(), time.monotonic())
         ls.timer(1.0 / cfg.status_rate_hz, self._on_status_timer, name="status")
         if ls.causal:
-            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s)
+            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s, should_stop=rospy.is_shutdown)
             ls.around_step(before=self.link.read_step, after=self.link.end_step)
             ls.on_step(self._step)
             return

@@ -152,7 +152,7 @@ class WaypointControllerNode:
         if ls.causal:
             # The MAVLink side of the lockstep: HELLO now (registered before the first step), then each step's
             # messages up to the router's marker before the step's inputs, and our marker after our setpoints.
-            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s)
+            self.link.start_lockstep(ls.settings.lookahead_steps, ls.settings.watchdog_s, should_stop=rospy.is_shutdown)
             ls.around_step(before=self.link.read_step, after=self.link.end_step)
         ls.timer(1.0 / self.config.setpoint_rate_hz, self.on_timer, name="setpoints")
 

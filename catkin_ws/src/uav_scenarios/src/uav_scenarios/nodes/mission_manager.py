@@ -5,7 +5,8 @@ ROS interface:
 Subscribes:
     ``/uav/controller/state`` (uav_msgs/ControllerState), ``/uav/battery`` (sensor_msgs/BatteryState),
     ``/scenario/metrics`` (uav_msgs/RunMetrics: % mapped, collisions), ``/uav/sim_state`` (uav_msgs/SimState:
-    crashed), ``/sim/collision`` (uav_msgs/Collision: one per contact, counted at once), ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the geolocated
+    crashed), ``/sim/collision`` (uav_msgs/Collision: one per contact, counted at once),
+    ``/autonomy/goal`` (geometry_msgs/PointStamped), and for search and rescue the geolocated
     detections ``/geolocator/detections`` (uav_msgs/DetectionArray: the scenario's detector's boxes placed in
     map; frames of ``perception.camera`` only; detections below ``perception.score_threshold`` or without a
     position are counted, and the latter reported in ``/scenario/status`` ``detections_unplaced``).
@@ -206,6 +207,7 @@ class MissionManager:
                 on_result=self.on_fault_result,
                 lookahead_steps=self.ls.settings.lookahead_steps,
                 watchdog_s=self.ls.settings.watchdog_s,
+                should_stop=rospy.is_shutdown,
             )
             step_link.start()
             self.ls.around_step(before=step_link.before_step, after=step_link.after_step)

@@ -249,6 +249,7 @@ class StepFaultLink:
         schedule, elapsed_s, now_s, on_result, target_system, target_component: as :class:`FaultLink`.
         lookahead_steps: the caller's lookahead (its messages of step k reach the autopilot at grant k + L).
         watchdog_s: wall seconds a read may wait for the router's marker before it is an error.
+        should_stop: asked while waiting for the router: True ends the wait (``StopRequestedError``).
     """
 
     def __init__(
@@ -263,12 +264,14 @@ class StepFaultLink:
         watchdog_s: float,
         target_system: int = 1,
         target_component: int = 1,
+        should_stop: Callable[[], bool] | None = None,
     ) -> None:
         self.url = url
         self.schedule = schedule
         self.elapsed_s = elapsed_s
         self.now_s = now_s
         self.on_result = on_result
+        self.should_stop = should_stop
         self.lookahead_steps = lookahead_steps
         self.watchdog_s = watchdog_s
         self.target = (target_system, target_component)
@@ -308,7 +311,9 @@ class StepFaultLink:
             time.sleep(0.5)
         self.problem = ""
         self._conn = conn
-        self._client = LockstepClient(conn, name=f"fault link {self.url}", target_system=self.target[0])
+        self._client = LockstepClient(
+            conn, name=f"fault link {self.url}", target_system=self.target[0], should_stop=self.should_stop
+        )
         self._client.hello(self.lookahead_steps, watchdog_s=self.watchdog_s)
 
     def before_step(self, step: int, t_s: float) -> None:
