@@ -8,6 +8,9 @@ another with ``uav-run``, on the same cores, in the same benchmark run.
   (smoke.yaml says a run keeps one core busy, so two workers on two cores): simulated seconds per wall second of
   the whole command (cluster start, runs, tables and report); baseline the sequential figure. Target: no loss
   (ratio >= 1).
+* ``campaign.smoke.identical_to_sequential``: how many of the campaign's runs (two at a time on two workers) have
+  the same metrics and time series as the same run flown alone; the runs are deterministic (docs/lockstep.md), so
+  the target is all of them.
 * ``campaign.smoke.throughput_1_worker``: the same with ``--workers 1``, so the runs go one after another as in
   the baseline and the only difference is the campaign machinery. Target: no loss beyond the overhead below.
 * ``campaign.smoke.overhead_per_run_s``: in that one-worker campaign, the wall seconds per run not spent inside
@@ -45,18 +48,21 @@ SMOKE = REPO / "config" / "campaigns" / "smoke.yaml"
 OVERHEAD_TARGET_S = 2.0
 
 
-def sequential(tmp: Path, *, warm_up: bool = False) -> tuple[float, float, list[float]]:
-    """The smoke campaign's runs one after another with uav-run: (wall s, simulated s, each run's wall s).
+def sequential(tmp: Path, *, warm_up: bool = False) -> tuple[float, float, list[float], dict[str, Path]]:
+    """The smoke campaign's runs one after another with uav-run: (wall s, simulated s, each run's wall s, each run's
+    folder by key).
 
     ``warm_up``: only the first run, unmeasured (world and surface-voxel caches, Mesa's shader cache).
     """
     campaign = load_campaign(SMOKE)
     walls: list[float] = []
+    dirs: dict[str, Path] = {}
     sim = 0.0
     t0 = time.monotonic()
     for run in _plan(campaign)[: 1 if warm_up else None]:
         scenario = to_mapping(run.scenario)
         scenario.pop("source", None)
+        scenario["name"] = f"{campaign.name}-{run.arm}-s{run.seed}-r{run.repeat}"  # as the campaign names it
         job = {
             "campaign": campaign.name,
             "label": run.label,
@@ -73,8 +79,25 @@ def sequential(tmp: Path, *, warm_up: bool = False) -> tuple[float, float, list[
             msg = f"uav-run {run.label} exited {proc.returncode}:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
             raise RuntimeError(msg)
         sim += float(json.loads((run_dir / "metrics.json").read_text())["time"]["duration_s"])
+        dirs[run.key] = run_dir
         print(f"  sequential {run.label}: {walls[-1]:.1f} s wall", flush=True)
-    return time.monotonic() - t0, sim, walls
+    return time.monotonic() - t0, sim, walls, dirs
+
+
+def same_runs(seq: dict[str, Path], events: list[dict[str, Any]]) -> tuple[int, int]:
+    """(runs whose metrics and time series equal the sequential run of the same key, runs compared)."""
+    done = {e["key"]: Path(e["run_dir"]) for e in events if e.get("event") == "finished" and e["status"] == "done"}
+    same = 0
+    for key, run_dir in seq.items():
+        other = done.get(key)
+        if other is None:
+            continue
+        a, b = (json.loads((d / "metrics.json").read_text()) for d in (run_dir, other))
+        a.pop("versions", None)
+        b.pop("versions", None)
+        rows = (run_dir / "timeseries.csv").read_text() == (other / "timeseries.csv").read_text()
+        same += int(a == b and rows)
+    return same, len(seq)
 
 
 def campaign(tmp: Path, name: str, *extra: str) -> tuple[float, float, list[dict[str, Any]]]:
@@ -111,15 +134,18 @@ def main(argv: list[str]) -> int:
     seq_wall = seq_sim = c1_wall = c1_sim = ca_wall = ca_sim = 0.0
     seq_runs: list[float] = []
     overheads: list[float] = []
+    identical = compared = 0
     for i in range(args.repeats):
         with tempfile.TemporaryDirectory(prefix="bench_campaign_") as d:
             tmp = Path(d)
             if i == 0:
                 sequential(tmp / "warm_up", warm_up=True)
             order = ("seq", "one", "auto") if i % 2 == 0 else ("auto", "one", "seq")
+            seq_dirs: dict[str, Path] = {}
+            auto_events: list[dict[str, Any]] = []
             for what in order:
                 if what == "seq":
-                    w, s, runs = sequential(tmp)
+                    w, s, runs, seq_dirs = sequential(tmp)
                     seq_wall, seq_sim = seq_wall + w, seq_sim + s
                     seq_runs += runs
                 elif what == "one":
@@ -127,8 +153,10 @@ def main(argv: list[str]) -> int:
                     c1_wall, c1_sim = c1_wall + w, c1_sim + s
                     overheads.append(scheduling_overhead(events))
                 else:
-                    w, s, _ = campaign(tmp, "auto")
+                    w, s, auto_events = campaign(tmp, "auto")
                     ca_wall, ca_sim = ca_wall + w, ca_sim + s
+            same, n = same_runs(seq_dirs, auto_events)
+            identical, compared = identical + same, compared + n
     n_runs = len(seq_runs)
     seq_rate = seq_sim / seq_wall
     mean_run = sum(seq_runs) / n_runs
@@ -138,7 +166,14 @@ def main(argv: list[str]) -> int:
     record(
         "campaign.smoke.throughput", auto_rate, "sim s/s", seq_rate,
         target=">= 1x sequential", met=auto_rate >= seq_rate,
-        notes=f"embedded cluster sized to the machine (cores_per_run 1): {ca_wall:.0f} s wall, whole command",
+        notes=f"embedded cluster sized to the machine (cores_per_run 1): {ca_wall:.0f} s wall, whole command; "
+        f"deterministic runs (smoke.yaml): {identical} of {compared} identical to the same run one after another",
+    )  # fmt: skip
+    record(
+        "campaign.smoke.identical_to_sequential", float(identical), "runs", float(compared),
+        target="every run", met=identical == compared,
+        notes="runs of the embedded cluster's campaign (two at once) whose metrics.json (but the software versions) "
+        "and timeseries.csv equal the same run's flown alone with uav-run",
     )  # fmt: skip
     one_rate = c1_sim / c1_wall
     record(
