@@ -267,3 +267,18 @@ def test_the_march_skips_only_samples_above_every_surface() -> None:
         else:
             assert hit is not None
             assert ref - 0.5 <= hit.t_m <= ref + 1e-9
+
+
+@pytest.mark.parametrize("interpolation", ["nearest", "bilinear"])
+def test_one_point_lookups_equal_the_vectorised_ones(interpolation: str) -> None:
+    """The bisection's one-point lookup gives exactly what the march's vectorised lookup gives (inside, at the
+    edges, outside, over unknown cells), so refining a hit does not move it."""
+    rng = np.random.default_rng(5)
+    heights = rng.uniform(-5.0, 30.0, (17, 23))
+    heights[rng.random(heights.shape) < 0.15] = np.nan
+    grid = HeightGrid(heights, -40.0, 12.5, 2.5, interpolation=interpolation, name="g")  # type: ignore[arg-type]
+    x = np.concatenate([rng.uniform(-50.0, 30.0, 500), [-40.0, -40.0 + 23 * 2.5, 0.0]])
+    y = np.concatenate([rng.uniform(0.0, 70.0, 500), [12.5, 12.5 + 17 * 2.5, 12.5 + 17 * 2.5 + 1e-9]])
+    expected = grid.at(x, y, 0.75)
+    got = np.array([grid.at_point(float(a), float(b), 0.75) for a, b in zip(x, y, strict=True)])
+    np.testing.assert_array_equal(got, expected)

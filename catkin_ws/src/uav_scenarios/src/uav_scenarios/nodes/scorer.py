@@ -150,7 +150,10 @@ QUEUE = 2000
 #: Records are scored in stamp order once ROS time is this far past their stamp (late messages
 #: from other processes still count in order); the run's end cuts at the stop instant exactly.
 HOLD_S = 0.5
-#: Tracking metrics (py-motmetrics, slow on long runs) are recomputed this often (simulation s).
+#: Tracking metrics (py-motmetrics and HOTA, over the whole run so far) are first recomputed this long (simulation s)
+#: after the start, then each time the run has doubled (20 s, 40 s, 80 s...): a fixed period made their cost grow
+#: with the square of the run's length (a 30-minute run: 90 recomputations, each slower than the last); doubling
+#: keeps the live ones under twice the final summary's cost.
 TRACKING_PERIOD_S = 20.0
 #: Detector-camera images kept for cutting the gallery's crops (frames are scored HOLD_S after their stamp).
 GALLERY_IMAGES = 40
@@ -538,7 +541,8 @@ class ScorerNode:
         self._flush_scored(scored_to)
         tracking = now >= self._next_tracking_s
         if tracking:
-            self._next_tracking_s = now + TRACKING_PERIOD_S
+            elapsed = now - self.start_s if self.start_s is not None else 0.0
+            self._next_tracking_s = now + max(TRACKING_PERIOD_S, elapsed)
         self._emit(scored_to, tracking=tracking)
         elapsed = now - self.start_s if self.start_s is not None else None
         if elapsed is None or not self.snapshots_due:

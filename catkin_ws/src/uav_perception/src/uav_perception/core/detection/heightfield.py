@@ -105,6 +105,31 @@ class HeightGrid:
         out = np.where(inside, top * (1 - ty) + bottom * ty, np.nan)
         return np.asarray(out + offset_m, dtype=np.float64)
 
+    def at_point(self, x_m: float, y_m: float, offset_m: float = 0.0) -> float:
+        """:meth:`at` for one point, in plain floats (the same arithmetic, so the same value; a bisection asks
+        one point at a time, where numpy's per-call cost is most of the time)."""
+        rows, cols = self.shape
+        fx = (x_m - self.origin_x_m) / self.resolution_m
+        fy = (y_m - self.origin_y_m) / self.resolution_m
+        h = self.heights_m
+        if self.interpolation == "nearest":
+            c = math.floor(fx)
+            r = math.floor(fy)
+            if not (0 <= c < cols and 0 <= r < rows):
+                return math.nan
+            return float(h[r, c]) + offset_m
+        if not (0.0 <= fx <= cols and 0.0 <= fy <= rows):
+            return math.nan
+        sx = min(max(fx - 0.5, 0.0), cols - 1.0)
+        sy = min(max(fy - 0.5, 0.0), rows - 1.0)
+        c0 = min(math.floor(sx), cols - 2)
+        r0 = min(math.floor(sy), rows - 2)
+        tx = sx - c0
+        ty = sy - r0
+        top = float(h[r0, c0]) * (1 - tx) + float(h[r0, c0 + 1]) * tx
+        bottom = float(h[r0 + 1, c0]) * (1 - tx) + float(h[r0 + 1, c0 + 1]) * tx
+        return (top * (1 - ty) + bottom * ty) + offset_m
+
 
 @dataclass(frozen=True)
 class RayHit:
@@ -130,6 +155,15 @@ def _stack_heights(
         heights[idx[known]] = h[known]
         which[idx[known]] = k
     return heights, which
+
+
+def _stack_height_at(grids: Sequence[HeightGrid], x_m: float, y_m: float, offset_m: float) -> tuple[float, int]:
+    """:func:`_stack_heights` for one point: (height, grid index), NaN and -1 where no grid knows it."""
+    for k, grid in enumerate(grids):
+        h = grid.at_point(x_m, y_m, offset_m)
+        if math.isfinite(h):
+            return h, k
+    return math.nan, -1
 
 
 def first_hit(
@@ -182,14 +216,15 @@ def first_hit(
     if hits.size == 0 or hits[0] == 0:
         return None
     lo, hi = float(t[hits[0] - 1]), float(t[hits[0]])
+    ox, oy, oz = (float(v) for v in o)
+    dx, dy, dz = (float(v) for v in d)
     for _ in range(max(1, math.ceil(math.log2(max(step_m, 1e-3) / 1e-3)))):
         mid = 0.5 * (lo + hi)
-        p = o + mid * d
-        hm, _ = _stack_heights(grids, np.array([p[0]]), np.array([p[1]]), offset_m)
-        if p[2] <= hm[0]:
+        hm, _ = _stack_height_at(grids, ox + mid * dx, oy + mid * dy, offset_m)
+        if oz + mid * dz <= hm:  # NaN compares False, as in the march
             hi = mid
         else:
             lo = mid
-    p = o + hi * d
-    _, which = _stack_heights(grids, np.array([p[0]]), np.array([p[1]]), offset_m)
-    return RayHit(hi, (float(p[0]), float(p[1]), float(p[2])), int(which[0]))
+    px, py, pz = ox + hi * dx, oy + hi * dy, oz + hi * dz
+    _, which = _stack_height_at(grids, px, py, offset_m)
+    return RayHit(hi, (px, py, pz), which)
