@@ -207,7 +207,7 @@ def first_hit(
     if d[2] < 0.0 and o[2] > high:
         # Samples above the highest surface cannot hit: start one sample before the ray comes down to it (the
         # same samples from there on: the first hit and its bisection are unchanged, in a fraction of the lookups).
-        first = int(math.floor(((o[2] - high) / -d[2] - min_range_m) / step_m)) - 1
+        first = math.floor(((o[2] - high) / -d[2] - min_range_m) / step_m) - 1
         t = t[max(0, first) :]
     pts = o[None, :] + t[:, None] * d[None, :]
     h, _ = _stack_heights(grids, pts[:, 0], pts[:, 1], offset_m)
