@@ -33,6 +33,18 @@ STEPS = 60
 STEP_S = 0.1
 
 
+def _published() -> dict[int, list[int]]:
+    """What the master published at each step: the test's draws from random.Random(1), replayed."""
+    rng = random.Random(1)
+    published = {}
+    for k in range(1, STEPS + 1):
+        n = rng.randint(1, 2)
+        published[k] = [100 * k + i for i in range(n)]
+        for _ in range(n):
+            rng.uniform(0.0, 0.002)
+    return published
+
+
 class LockstepProtocol(unittest.TestCase):
     def test_participants_consume_exactly_what_the_protocol_says(self) -> None:
         rospy.init_node("master")
@@ -61,13 +73,7 @@ class LockstepProtocol(unittest.TestCase):
         wait = time.monotonic() + 20.0
         while min(len(seen["/a"]), len(seen["/b"])) < STEPS and time.monotonic() < wait:
             time.sleep(0.05)
-        rng_copy = random.Random(1)
-        published = {}
-        for k in range(1, STEPS + 1):
-            n = rng_copy.randint(1, 2)
-            published[k] = [100 * k + i for i in range(n)]
-            for _ in range(n):
-                rng_copy.uniform(0.0, 0.002)
+        published = _published()
         timer_steps = {3, 5, 8, 10, 13, 15, 18, 20, 23, 25, 28, 30, 33, 35, 38, 40, 43, 45, 48, 50, 53, 55, 58, 60}
         for k in range(1, STEPS + 1):
             from_b = [str(k - 2)] if k > 2 else []  # /b's lookahead is 2: its report of step k - 2
@@ -79,8 +85,10 @@ class LockstepProtocol(unittest.TestCase):
             expect_b = f"{k} data={published[k]} peer={from_a!r} timer={timer} poked=-1"
             self.assertEqual(seen["/a"].get(k), expect_a, f"what /a consumed at step {k}")
             self.assertEqual(seen["/b"].get(k), expect_b, f"what /b consumed at step {k}")
+        self._a_missing_message_stops_the_run(master, sum(len(v) for v in published.values()))
 
-        # A message the tick counts but nobody sent: the participants wait, report it, and the master stops.
+    def _a_missing_message_stops_the_run(self, master: StepMaster, total: int) -> None:
+        """A message the tick counts but nobody sent: the participants wait, report it, and the master stops."""
         master.count(rospy.resolve_name("/master/data"))
         while not master.can_grant():
             time.sleep(0.001)
@@ -92,7 +100,6 @@ class LockstepProtocol(unittest.TestCase):
                     self.fail("step granted although a participant never got its input")
                 master.check_watchdog()
                 time.sleep(0.05)
-        total = sum(len(v) for v in published.values())
         text = str(err.exception)
         for name in ("/a", "/b"):
             self.assertIn(

@@ -539,12 +539,11 @@ class ScorerNode:
             self._map_accuracy(now, wait=not self.ls.causal)
         scored_to = now - HOLD_S
         self._flush_scored(scored_to)
+        elapsed = now - self.start_s if self.start_s is not None else None
         tracking = now >= self._next_tracking_s
         if tracking:
-            elapsed = now - self.start_s if self.start_s is not None else 0.0
-            self._next_tracking_s = now + max(TRACKING_PERIOD_S, elapsed)
+            self._next_tracking_s = now + max(TRACKING_PERIOD_S, elapsed or 0.0)
         self._emit(scored_to, tracking=tracking)
-        elapsed = now - self.start_s if self.start_s is not None else None
         if elapsed is None or not self.snapshots_due:
             return
         if elapsed >= self.snapshots_due[0] - 1.0 / self.scenario.scoring.metrics_rate_hz and not self.image_subs:
